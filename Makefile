@@ -1,0 +1,32 @@
+# The two commands of the README: `make demo` and `make test`. Both bootstrap
+# .venv (and the system GL libraries MuJoCo rendering needs) on first use.
+PY       ?= python3
+VENV     := .venv
+VPY      := $(VENV)/bin/python
+STAMP    := $(VENV)/.installed
+export MUJOCO_GL ?= egl
+
+.PHONY: demo test bench venv gl clean
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -x $(VPY) || $(PY) -m venv $(VENV)
+	$(VPY) -m pip install --quiet --upgrade pip
+	$(VPY) -m pip install --quiet -c constraints.txt -e '.[test]'
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+gl:
+	@bash scripts/ensure_gl.sh
+
+demo: $(STAMP) gl
+	$(VENV)/bin/sebvs run topologies/synthetic.toml --for 5 --profile
+
+test: $(STAMP) gl
+	$(VPY) -m pytest -q
+
+bench: $(STAMP) gl
+	$(VPY) tools/bench_hops.py --quick --json out/bench_hops.json
+
+clean:
+	rm -rf $(VENV) runs out
