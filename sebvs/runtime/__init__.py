@@ -1,0 +1,5 @@
+"""The actor runtime: ZeroMQ actors in their own processes, wired by a topology file."""
+from .actor import Actor
+from .wire import Message
+
+__all__ = ["Actor", "Message"]

@@ -1,0 +1,67 @@
+"""Actors for tools/bench_hops.py: a paced payload source and a sink that logs hop latency."""
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sebvs.runtime import Actor, Message
+
+
+class PayloadSource(Actor):
+    """Sends `count` payloads of `nbytes`, one every `interval_ms`, then ends the run.
+
+    Each payload is written in place into the output's shared-memory slot before `emit`
+    (as a renderer does), so what the hop costs is the runtime's, not a copy's.
+    """
+    outputs = ("payload",)
+
+    @dataclass
+    class Params:
+        nbytes: int = 1_228_800
+        count: int = 2000
+        interval_ms: float = 1.0
+        warmup: int = 50
+
+    async def run(self) -> None:
+        p = self.params
+        pattern = np.arange(p.nbytes, dtype=np.uint8)
+        period = int(p.interval_ms * 1e6)
+        t_next = time.monotonic_ns()
+        for i in range(p.warmup + p.count):
+            out = self.reserve("payload", {"data": ((p.nbytes,), np.uint8)})
+            out["data"][...] = pattern
+            if p.nbytes >= 8:
+                out["data"][:8] = np.frombuffer(np.int64(i).tobytes(), np.uint8)
+            await self.emit("payload", out, tick=i, meta={"warmup": i < p.warmup})
+            t_next += period
+            if not await self.sleep_until(t_next):
+                return
+        await asyncio.sleep(0.3)  # let the last ones arrive before the run ends
+        self.request_stop("all payloads sent")
+
+
+class LatencySink(Actor):
+    """Records, per message, send stamp of the producer -> this handler's start, in ns."""
+    inputs = ("payload",)
+
+    @dataclass
+    class Params:
+        path: str = "latency.npy"
+
+    async def setup(self) -> None:
+        self.latencies: list[int] = []
+        self.bad = 0
+
+    async def on_payload(self, msg: Message) -> None:
+        data = msg.arrays["data"]
+        if data.size >= 8 and int(data[:8].view(np.int64)[0]) != msg.tick:
+            self.bad += 1  # the bytes are not the ones sent with this header
+        if not msg.meta.get("warmup"):
+            self.latencies.append(msg.recv_ns - msg.stamps[-1][2])
+
+    async def teardown(self) -> None:
+        np.save(Path(self.params.path), np.asarray(self.latencies + [-self.bad - 1], np.int64))

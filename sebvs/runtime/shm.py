@@ -1,0 +1,175 @@
+"""Shared-memory rings: one per actor output, so large arrays are written once and read in place.
+
+A ring is a file in /dev/shm (what POSIX ``shm_open`` creates on Linux) mapped by the
+producer and by every consumer::
+
+    [ page 0: magic, n_slots, slot_bytes, generation[n_slots] (int64) | slot 0 | slot 1 | ... ]
+
+Each slot carries a generation counter used as a seqlock: the producer makes it odd
+while it writes and even once the slot is published; the descriptor on the wire carries
+the even value. A reader whose slot no longer shows that value knows the producer has
+lapped it and drops the message instead of reading torn data.
+
+We map files directly instead of using ``multiprocessing.shared_memory``: on Python 3.11
+every process that attaches registers the segment with its resource tracker, which then
+unlinks it (and warns) when any consumer exits. Ownership here is simple and explicit:
+the producer creates, the supervisor removes everything of the run by name prefix, also
+after a crash.
+"""
+from __future__ import annotations
+
+import mmap
+import os
+from pathlib import Path
+
+import numpy as np
+
+SHM_DIR = Path("/dev/shm")
+MAGIC = 0x53454256_53524E47  # "SEBVSRNG"
+PAGE = 4096
+ALIGN = 64
+
+
+def _round_up(n: int, to: int) -> int:
+    return (n + to - 1) // to * to
+
+
+def packed_offsets(nbytes: list[int]) -> tuple[list[int], int]:
+    """Offsets of arrays packed into one slot, each 64-byte aligned, and the total size."""
+    offsets, pos = [], 0
+    for n in nbytes:
+        offsets.append(pos)
+        pos = _round_up(pos + n, ALIGN)
+    return offsets, pos
+
+
+class RingWriter:
+    """The producer side of one output's ring; grows (as a new file) when a sample outgrows it."""
+
+    def __init__(self, prefix: str, n_slots: int, slot_bytes: int = 0):
+        self.prefix = prefix          # e.g. "sebvs-1a2b3c4d-camera-rgb"
+        self.n_slots = int(n_slots)
+        self.generation_count = 0     # how many files this ring has had
+        self.name = ""
+        self.slot_bytes = 0
+        self._mm = None
+        self._gen = None
+        self._next = 0
+        if slot_bytes:
+            self._create(slot_bytes)
+
+    def _create(self, slot_bytes: int) -> None:
+        self.close(unlink=True)
+        self.generation_count += 1
+        self.name = f"{self.prefix}-{os.getpid()}-{self.generation_count}"
+        self.slot_bytes = _round_up(max(slot_bytes, PAGE), PAGE)
+        size = PAGE + self.n_slots * self.slot_bytes
+        header_bytes = 24 + 8 * self.n_slots
+        if header_bytes > PAGE:
+            raise ValueError(f"too many slots ({self.n_slots}) for the ring header page")
+        fd = os.open(SHM_DIR / self.name, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        try:
+            os.ftruncate(fd, size)
+            self._mm = mmap.mmap(fd, size)
+        finally:
+            os.close(fd)
+        head = np.ndarray((3,), np.int64, buffer=self._mm)
+        head[:] = (MAGIC, self.n_slots, self.slot_bytes)
+        self._gen = np.ndarray((self.n_slots,), np.int64, buffer=self._mm, offset=24)
+        self._next = 0
+
+    def reserve(self, nbytes: int) -> tuple[int, memoryview]:
+        """Claim the next slot for writing (generation made odd); returns (slot, writable view)."""
+        if nbytes > self.slot_bytes:
+            # grow with headroom so a slowly growing payload does not recreate every time
+            self._create(max(nbytes, 2 * self.slot_bytes) if self.slot_bytes else nbytes)
+        slot = self._next
+        self._next = (slot + 1) % self.n_slots
+        self._gen[slot] += 1 if self._gen[slot] % 2 == 0 else 2
+        start = PAGE + slot * self.slot_bytes
+        return slot, memoryview(self._mm)[start:start + nbytes]
+
+    def commit(self, slot: int) -> int:
+        """Publish a reserved slot; returns the (even) generation to put on the wire."""
+        self._gen[slot] += 1
+        return int(self._gen[slot])
+
+    def close(self, unlink: bool = True) -> None:
+        if self._mm is not None:
+            self._gen = None
+            try:
+                self._mm.close()
+            except BufferError:
+                pass  # a numpy view is still alive; the mapping goes when it does
+            self._mm = None
+        if unlink and self.name:
+            try:
+                os.unlink(SHM_DIR / self.name)
+            except FileNotFoundError:
+                pass
+
+
+class RingReader:
+    """The consumer side: maps rings by name on first use and checks slot generations."""
+
+    def __init__(self, max_maps: int = 16):
+        self._maps: dict[str, tuple[mmap.mmap, np.ndarray, int, int]] = {}
+        self.max_maps = max_maps
+
+    def _map(self, name: str):
+        entry = self._maps.get(name)
+        if entry is not None:
+            return entry
+        if "/" in name or not name.startswith("sebvs-"):
+            raise ValueError(f"refusing ring name {name!r}")
+        fd = os.open(SHM_DIR / name, os.O_RDONLY)
+        try:
+            size = os.fstat(fd).st_size
+            mm = mmap.mmap(fd, size, prot=mmap.PROT_READ)
+        finally:
+            os.close(fd)
+        magic, n_slots, slot_bytes = np.ndarray((3,), np.int64, buffer=mm)
+        if magic != MAGIC or PAGE + n_slots * slot_bytes > size:
+            mm.close()
+            raise ValueError(f"ring {name!r} has a bad header")
+        gen = np.ndarray((int(n_slots),), np.int64, buffer=mm, offset=24)
+        if len(self._maps) >= self.max_maps:  # producers that grew or restarted leave old rings
+            self._maps.pop(next(iter(self._maps)))
+        entry = (mm, gen, int(n_slots), int(slot_bytes))
+        self._maps[name] = entry
+        return entry
+
+    def view(self, name: str, slot: int, offset: int, nbytes: int, generation: int):
+        """A read-only view of the bytes, or None if the slot was overwritten (or is being written)."""
+        mm, gen, n_slots, slot_bytes = self._map(name)
+        if not (0 <= slot < n_slots and 0 <= offset and offset + nbytes <= slot_bytes):
+            raise ValueError(f"location slot={slot} offset={offset} nbytes={nbytes} "
+                             f"outside ring {name!r} ({n_slots} x {slot_bytes} B)")
+        if gen[slot] != generation:
+            return None
+        start = PAGE + slot * slot_bytes + offset
+        return memoryview(mm)[start:start + nbytes]
+
+    def still_valid(self, name: str, slot: int, generation: int) -> bool:
+        entry = self._maps.get(name)
+        return entry is not None and entry[1][slot] == generation
+
+    def close(self) -> None:
+        for mm, *_ in self._maps.values():
+            try:
+                mm.close()
+            except BufferError:
+                pass
+        self._maps.clear()
+
+
+def remove_run_rings(run_id: str) -> list[str]:
+    """Unlink every ring of a run (supervisor cleanup, also after a crash)."""
+    removed = []
+    for path in SHM_DIR.glob(f"sebvs-{run_id}-*"):
+        try:
+            path.unlink()
+            removed.append(path.name)
+        except FileNotFoundError:
+            pass
+    return removed

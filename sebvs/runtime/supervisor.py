@@ -1,0 +1,374 @@
+"""The supervisor: one process per actor, a run directory, ready handshake, clean stop.
+
+    runs/<name>-<time>-<id>/run.json        endpoints, pids, status (rewritten atomically)
+    runs/<name>-<time>-<id>/logs/<actor>.log
+    <tmp>/sebvs-<id>/                       ipc sockets, actor specs; removed at the end
+
+An actor that exits with code 0 has finished its job (a recorder that wrote its
+episodes, a source that ran out): the run then ends. An actor that dies otherwise is
+reported with its exit code and the end of its log, then restarted or the run stopped,
+as the topology's ``restart`` says.
+"""
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Callable
+
+import msgpack
+import zmq
+
+from .shm import remove_run_rings
+from .topology import Topology, load_topology
+
+STOP_GRACE_S = 1.0      # after `stop`, before SIGTERM
+TERM_GRACE_S = 0.5      # after SIGTERM, before SIGKILL
+POLL_S = 0.05
+MAX_RING_SLOTS = 256
+LOG_TAIL_LINES = 20
+
+
+class RunFailed(RuntimeError):
+    """An actor died (or never became ready) and the run was stopped."""
+
+
+def runs_root(runs_dir: str | Path | None = None) -> Path:
+    return Path(runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs"))
+
+
+def socket_root() -> Path:
+    return Path(tempfile.gettempdir())
+
+
+def _free_tcp_port(host: str) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def log_tail(path: Path, n: int = LOG_TAIL_LINES) -> str:
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except FileNotFoundError:
+        return "(no log)"
+    return "\n".join(lines[-n:])
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str))
+    os.replace(tmp, path)
+
+
+@dataclass
+class _Proc:
+    name: str
+    spec_path: Path
+    log_path: Path
+    popen: subprocess.Popen | None = None
+    ready: bool = False
+    restarts: int = 0
+    exit_code: int | None = None
+
+
+class Supervisor:
+    def __init__(self, topo: Topology, runs_dir: str | Path | None = None,
+                 log_level: str = "INFO", echo: Callable[[str], None] | None = None):
+        self.topo = topo
+        self.echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
+        self.run_id = secrets.token_hex(4)
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        self.rundir = (runs_root(runs_dir) / f"{topo.name}-{stamp}-{self.run_id}").resolve()
+        self.sockdir = socket_root() / f"sebvs-{self.run_id}"
+        self.log_level = log_level
+        self.ctx = zmq.Context()
+        self.procs: dict[str, _Proc] = {}
+        self.info: dict = {}
+        self.status = "new"
+        self.failure: str | None = None
+        self._interrupted: str | None = None
+
+    # ------------------------------------------------------------------ planning
+    def _endpoint(self, stem: str) -> str:
+        if self.topo.transport == "tcp":
+            return f"tcp://{self.topo.host}:{_free_tcp_port(self.topo.host)}"
+        return f"ipc://{self.sockdir}/{stem}"
+
+    def _plan(self) -> dict[str, dict]:
+        topo = self.topo
+        active = topo.active
+        outputs = {}
+        for a in active.values():
+            for out in a.cls.outputs:
+                consumers = topo.consumers(a.name, out)
+                depth = max([i.queue for _, i in consumers if i.queue != "latest"] or [2])
+                outputs[(a.name, out)] = {
+                    "endpoint": self._endpoint(f"{a.name}.{out}"),
+                    "ring": None if topo.transport == "tcp"
+                    else f"sebvs-{self.run_id}-{a.name}-{out}",
+                    "slots": min(2 * depth + 4, MAX_RING_SLOTS),
+                    "hwm": depth,
+                    "subscribers": len(consumers),
+                }
+        self.supervisor_endpoint = self._endpoint("supervisor")
+        specs = {}
+        for a in active.values():
+            specs[a.name] = {
+                "name": a.name, "run": a.run, "params": a.params,
+                "seed": topo.actor_seed(a.name), "clock": topo.clock, "run_id": self.run_id,
+                "consumed": [o for o in a.cls.outputs if topo.consumers(a.name, o)],
+                "inputs": {i.name: {"endpoint": outputs[(i.producer, i.output)]["endpoint"],
+                                    "topic": f"{i.producer}/{i.output}", "queue": i.queue,
+                                    "hwm": 2 if i.queue == "latest" else i.queue}
+                           for i in a.inputs.values()},
+                "outputs": {o: outputs[(a.name, o)] for o in a.cls.outputs},
+                "control": self._endpoint(f"{a.name}.ctl"),
+                "telemetry": self._endpoint(f"{a.name}.tel"),
+                "supervisor": self.supervisor_endpoint,
+                "supervisor_pid": os.getpid(),
+                "log_level": self.log_level,
+            }
+        return specs
+
+    # ------------------------------------------------------------------ run.json
+    def _write_info(self) -> None:
+        self.info["status"] = self.status
+        self.info["failure"] = self.failure
+        for name, p in self.procs.items():
+            entry = self.info["actors"][name]
+            entry["pid"] = p.popen.pid if p.popen else None
+            entry["restarts"] = p.restarts
+            entry["exit_code"] = p.exit_code
+        write_json_atomic(self.rundir / "run.json", self.info)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        (self.rundir / "logs").mkdir(parents=True, exist_ok=True)
+        self.sockdir.mkdir(mode=0o700, parents=True)
+        (self.sockdir / "rundir").write_text(str(self.rundir))
+        specs = self._plan()
+        self.specs = specs
+        self.pull = self.ctx.socket(zmq.PULL)
+        self.pull.setsockopt(zmq.LINGER, 0)
+        self.pull.bind(self.supervisor_endpoint)
+        self.info = {
+            "name": self.topo.name, "run_id": self.run_id, "topology": str(self.topo.path),
+            "rundir": str(self.rundir), "sockdir": str(self.sockdir),
+            "supervisor_pid": os.getpid(), "clock": self.topo.clock,
+            "started_at": datetime.now().isoformat(timespec="seconds"),
+            "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
+            "actors": {n: {"run": s["run"], "control": s["control"],
+                           "telemetry": s["telemetry"], "consumed": s["consumed"],
+                           "outputs": {o: v["endpoint"] for o, v in s["outputs"].items()},
+                           "inputs": {i: v["topic"] for i, v in s["inputs"].items()},
+                           "log": str(self.rundir / "logs" / f"{n}.log")}
+                       for n, s in specs.items()},
+        }
+        for name, spec in specs.items():
+            spec_path = self.sockdir / f"{name}.json"
+            spec_path.write_text(json.dumps(spec))
+            self.procs[name] = _Proc(name, spec_path, self.rundir / "logs" / f"{name}.log")
+        self.status = "starting"
+        for p in self.procs.values():
+            self._spawn(p)
+        self._write_info()
+        self._await_ready()
+        for p in self.procs.values():
+            self._command(p.name, {"cmd": "start"})
+        self.status = "running"
+        self._write_info()
+
+    def _spawn(self, p: _Proc) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        cwd = os.getcwd()
+        env["PYTHONPATH"] = cwd + os.pathsep + env.get("PYTHONPATH", "") if \
+            env.get("PYTHONPATH") else cwd  # users' own actor modules next to the topology
+        with open(p.log_path, "ab") as log:
+            p.popen = subprocess.Popen([sys.executable, "-m", "sebvs.runtime.worker",
+                                        str(p.spec_path)], stdout=log, stderr=subprocess.STDOUT,
+                                       stdin=subprocess.DEVNULL, env=env,
+                                       start_new_session=True)  # Ctrl-C reaches only us
+        p.ready = False
+        p.exit_code = None
+
+    def _await_ready(self) -> None:
+        deadline = time.monotonic() + self.topo.ready_timeout_s
+        while not all(p.ready for p in self.procs.values()):
+            if self._interrupted:
+                raise RunFailed(f"interrupted ({self._interrupted}) before all actors were ready")
+            dead = self._reap()
+            if dead:
+                raise RunFailed(self._death_report(dead[0], "before it was ready"))
+            if time.monotonic() > deadline:
+                waiting = [p.name for p in self.procs.values() if not p.ready]
+                raise RunFailed(f"actors not ready after {self.topo.ready_timeout_s:.0f} s: "
+                                f"{', '.join(waiting)}")
+            self._poll_ready(POLL_S)
+
+    def _poll_ready(self, timeout_s: float) -> list[str]:
+        ready = []
+        if self.pull.poll(int(timeout_s * 1000)):
+            while True:
+                try:
+                    msg = msgpack.unpackb(self.pull.recv(zmq.NOBLOCK))
+                except zmq.Again:
+                    break
+                p = self.procs.get(msg.get("actor"))
+                if p is not None and msg.get("event") == "ready":
+                    p.ready = True
+                    ready.append(p.name)
+        return ready
+
+    def _command(self, actor: str, request: dict, timeout_s: float = 2.0) -> dict | None:
+        return control_request(self.ctx, self.specs[actor]["control"], request, timeout_s)
+
+    def _reap(self) -> list[_Proc]:
+        dead = []
+        for p in self.procs.values():
+            if p.popen is not None and p.exit_code is None:
+                code = p.popen.poll()
+                if code is not None:
+                    p.exit_code = code
+                    dead.append(p)
+        return dead
+
+    def _death_report(self, p: _Proc, when: str = "") -> str:
+        code = p.exit_code
+        how = f"signal {signal.Signals(-code).name}" if code is not None and code < 0 \
+            else f"exit code {code}"
+        return (f"actor {p.name!r} died {when} ({how}); last lines of {p.log_path}:\n"
+                + _indent(log_tail(p.log_path)))
+
+    def wait(self, duration_s: float | None = None,
+             on_poll: Callable[[float], None] | None = None) -> int:
+        """Supervise until ``duration_s`` passes, Ctrl-C, an actor finishes or one fails."""
+        t_end = None if duration_s is None else time.monotonic() + duration_s
+        while True:
+            if self._interrupted:
+                self.echo(f"sebvs: {self._interrupted}: stopping {self.topo.name}")
+                break
+            if t_end is not None and time.monotonic() >= t_end:
+                break
+            for p in self._reap():
+                if p.exit_code == 0:
+                    self.echo(f"sebvs: actor {p.name!r} finished; ending the run")
+                    return self.stop()
+                self.echo("sebvs: " + self._death_report(p))
+                if self.topo.restart == "restart" and p.restarts < self.topo.max_restarts:
+                    p.restarts += 1
+                    self.echo(f"sebvs: restarting {p.name!r} "
+                              f"({p.restarts}/{self.topo.max_restarts})")
+                    self._spawn(p)
+                    self._write_info()
+                else:
+                    self.failure = self._death_report(p)
+                    return self.stop()
+            for name in self._poll_ready(0) if any(not p.ready for p in self.procs.values()) \
+                    else []:
+                self._command(name, {"cmd": "start"})  # a restarted actor joins the clock
+            if on_poll is not None:
+                on_poll(POLL_S)
+            else:
+                time.sleep(POLL_S)
+        return self.stop()
+
+    def interrupt(self, reason: str) -> None:
+        self._interrupted = reason
+
+    def stop(self) -> int:
+        """Stop every actor within STOP_GRACE_S + TERM_GRACE_S; remove sockets and rings."""
+        if self.status == "ended":
+            return 1 if self.failure else 0
+        self.status = "stopping"
+        live = [p for p in self.procs.values() if p.popen and p.popen.poll() is None]
+        sockets = []
+        for p in live:  # ask all at once, then wait for all
+            s = self.ctx.socket(zmq.DEALER)
+            s.setsockopt(zmq.LINGER, 0)
+            s.connect(self.specs[p.name]["control"])
+            s.send(msgpack.packb({"cmd": "stop"}))
+            sockets.append(s)
+        for sig, grace in ((None, STOP_GRACE_S), (signal.SIGTERM, TERM_GRACE_S),
+                           (signal.SIGKILL, 1.0)):
+            live = [p for p in live if p.popen.poll() is None]
+            if sig is not None:
+                for p in live:
+                    try:
+                        os.killpg(p.popen.pid, sig)
+                    except ProcessLookupError:
+                        pass
+            deadline = time.monotonic() + grace
+            while live and time.monotonic() < deadline:
+                live = [p for p in live if p.popen.poll() is None]
+                time.sleep(0.01)
+            if not live:
+                break
+        for s in sockets:
+            s.close()
+        for p in self.procs.values():
+            if p.popen is not None and p.exit_code is None:
+                p.exit_code = p.popen.poll()
+        self.cleanup()
+        self.status = "ended"
+        self.info["ended_at"] = datetime.now().isoformat(timespec="seconds")
+        self._write_info()
+        return 1 if self.failure else 0
+
+    def cleanup(self) -> None:
+        try:
+            self.pull.close()
+        except AttributeError:
+            pass
+        remove_run_rings(self.run_id)
+        shutil.rmtree(self.sockdir, ignore_errors=True)
+        self.ctx.term()
+
+
+def control_request(ctx: zmq.Context, endpoint: str, request: dict,
+                    timeout_s: float = 2.0) -> dict | None:
+    """One request/reply on an actor's control socket; None when it does not answer in time."""
+    s = ctx.socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 0)
+    try:
+        s.connect(endpoint)
+        s.send(msgpack.packb(request, use_bin_type=True))
+        if not s.poll(int(timeout_s * 1000)):
+            return None
+        return msgpack.unpackb(s.recv(), raw=False)
+    finally:
+        s.close()
+
+
+def _indent(text: str) -> str:
+    return "\n".join("    " + line for line in text.splitlines())
+
+
+def run_topology(path: str | Path, overrides: list[str] | tuple = (),
+                 duration_s: float | None = 5.0, runs_dir: str | Path | None = None,
+                 echo: Callable[[str], None] | None = None) -> Path:
+    """Run a topology to its end (or for ``duration_s``) and return its run directory.
+
+    Raises RunFailed when an actor died, naming it with the end of its log.
+    """
+    topo = load_topology(path, overrides)
+    sup = Supervisor(topo, runs_dir=runs_dir, echo=echo or (lambda text: None))
+    try:
+        sup.start()
+        code = sup.wait(duration_s)
+    except BaseException:
+        sup.stop()
+        raise
+    if code != 0:
+        raise RunFailed(sup.failure or f"run ended with code {code}")
+    return sup.rundir

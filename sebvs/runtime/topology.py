@@ -1,0 +1,283 @@
+"""Topology files: which actors run, with what parameters, wired how.
+
+Everything is validated before a process starts; an error names the file, the table and
+the key. Actors whose outputs nobody consumes are pruned (an actor without outputs is a
+sink and stays).
+"""
+from __future__ import annotations
+
+import importlib
+import tomllib
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .params import build_params
+
+TOPOLOGY_KEYS = {"name": str, "clock": str, "seed": int, "restart": str,
+                 "max_restarts": int, "transport": str, "host": str, "description": str,
+                 "queue": int, "ready_timeout_s": (int, float)}
+CLOCKS = ("lockstep", "realtime")
+RESTART_POLICIES = ("stop", "restart")
+TRANSPORTS = ("ipc", "tcp")
+ACTOR_RESERVED = {"run", "inputs", "keep"}
+DEFAULT_QUEUE = 32
+
+
+class TopologyError(ValueError):
+    """A topology that cannot run; the message names file, table and key."""
+
+
+@dataclass
+class InputSpec:
+    name: str
+    producer: str
+    output: str
+    queue: int | str = DEFAULT_QUEUE   # N messages, or "latest"
+
+    @property
+    def source(self) -> str:
+        return f"{self.producer}/{self.output}"
+
+
+@dataclass
+class ActorSpec:
+    name: str
+    run: str
+    cls: type
+    inputs: dict[str, InputSpec]
+    params: dict[str, Any]
+    keep: bool = False
+    pruned: bool = False
+
+
+@dataclass
+class Topology:
+    path: Path
+    name: str
+    clock: str = "realtime"
+    seed: int = 0
+    restart: str = "stop"
+    max_restarts: int = 3
+    transport: str = "ipc"
+    host: str = "127.0.0.1"
+    queue: int = DEFAULT_QUEUE
+    ready_timeout_s: float = 60.0
+    description: str = ""
+    actors: dict[str, ActorSpec] = field(default_factory=dict)
+
+    @property
+    def active(self) -> dict[str, ActorSpec]:
+        return {n: a for n, a in self.actors.items() if not a.pruned}
+
+    def consumers(self, producer: str, output: str) -> list[tuple[str, InputSpec]]:
+        return [(a.name, i) for a in self.active.values() for i in a.inputs.values()
+                if i.producer == producer and i.output == output]
+
+    def actor_seed(self, name: str) -> int:
+        """A per-actor seed derived from the topology seed, stable across runs."""
+        return (self.seed * 1_000_003 + zlib.crc32(name.encode())) % (2 ** 31)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``actor.key=value`` -> (["actor", "key"], value), the value read as TOML when it parses."""
+    if "=" not in text:
+        raise TopologyError(f"--set {text!r}: expected actor.key=value")
+    path, _, raw = text.partition("=")
+    parts = path.strip().split(".")
+    if len(parts) < 2 or not all(parts):
+        raise TopologyError(f"--set {text!r}: expected actor.key=value "
+                            f"(or topology.key=value)")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # a bare word: take it as a string
+    return parts, value
+
+
+def _apply_override(doc: dict, text: str) -> None:
+    parts, value = parse_override(text)
+    if parts[0] == "topology":
+        table = doc.setdefault("topology", {})
+    else:
+        actors = doc.get("actors", {})
+        if parts[0] not in actors:
+            raise TopologyError(f"--set {text!r}: no actor {parts[0]!r} "
+                                f"(actors: {', '.join(actors) or 'none'})")
+        table = actors[parts[0]]
+    for p in parts[1:-1]:
+        table = table.setdefault(p, {})
+        if not isinstance(table, dict):
+            raise TopologyError(f"--set {text!r}: {p!r} is not a table")
+    table[parts[-1]] = value
+
+
+def _import_actor(run: str, where: str) -> type:
+    from .actor import Actor
+    if not isinstance(run, str) or ":" not in run:
+        raise TopologyError(f"{where} key 'run': expected \"module:Class\", got {run!r}")
+    module_name, _, cls_name = run.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise TopologyError(f"{where} key 'run': cannot import {module_name!r}: {exc}") from None
+    cls = getattr(module, cls_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Actor)):
+        raise TopologyError(f"{where} key 'run': {run!r} is not an Actor class")
+    return cls
+
+
+def _parse_input(spec: Any, where: str, default_queue: int) -> tuple[str, int | str]:
+    if isinstance(spec, str):
+        return spec, default_queue
+    if isinstance(spec, dict):
+        unknown = set(spec) - {"from", "queue"}
+        if unknown:
+            raise TopologyError(f"{where}: unknown key {sorted(unknown)[0]!r} (from, queue)")
+        if not isinstance(spec.get("from"), str):
+            raise TopologyError(f"{where}: 'from' = \"actor/output\" is required")
+        queue = spec.get("queue", default_queue)
+        if not (queue == "latest" or (isinstance(queue, int) and not isinstance(queue, bool)
+                                      and 1 <= queue <= 100_000)):
+            raise TopologyError(f"{where} key 'queue': expected a positive integer or "
+                                f"\"latest\", got {queue!r}")
+        return spec["from"], queue
+    raise TopologyError(f"{where}: expected \"actor/output\" or a table, got {spec!r}")
+
+
+def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topology:
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise TopologyError(f"{path}: no such topology file") from None
+    except tomllib.TOMLDecodeError as exc:  # duplicate tables and keys end up here too
+        raise TopologyError(f"{path}: {exc}") from None
+    for text in overrides:
+        _apply_override(doc, text)
+    return build_topology(doc, path)
+
+
+def build_topology(doc: dict, path: Path) -> Topology:
+    unknown = set(doc) - {"topology", "actors"}
+    if unknown:
+        raise TopologyError(f"{path}: unknown table [{sorted(unknown)[0]}] "
+                            f"(expected [topology] and [actors.<name>])")
+    top = doc.get("topology")
+    if not isinstance(top, dict):
+        raise TopologyError(f"{path}: missing [topology] table")
+    for key, value in top.items():
+        if key not in TOPOLOGY_KEYS:
+            raise TopologyError(f"{path}: [topology] unknown key {key!r} "
+                                f"(known: {', '.join(TOPOLOGY_KEYS)})")
+        types = TOPOLOGY_KEYS[key]
+        if not isinstance(value, types) or isinstance(value, bool):
+            raise TopologyError(f"{path}: [topology] key {key!r}: wrong type "
+                                f"{type(value).__name__} ({value!r})")
+    for key, allowed in (("clock", CLOCKS), ("restart", RESTART_POLICIES),
+                         ("transport", TRANSPORTS)):
+        if key in top and top[key] not in allowed:
+            raise TopologyError(f"{path}: [topology] key {key!r}: {top[key]!r} is not one of "
+                                f"{', '.join(allowed)}")
+    if "name" not in top:
+        raise TopologyError(f"{path}: [topology] key 'name' is required")
+    topo = Topology(path=path, **top)
+    actors = doc.get("actors", {})
+    if not isinstance(actors, dict) or not actors:
+        raise TopologyError(f"{path}: no [actors.<name>] tables")
+    for name, table in actors.items():
+        where = f"{path}: [actors.{name}]"
+        if not name.replace("_", "").replace("-", "").isalnum():
+            raise TopologyError(f"{where}: actor names use letters, digits, '_' and '-'")
+        if not isinstance(table, dict):
+            raise TopologyError(f"{where}: expected a table")
+        if "run" not in table:
+            raise TopologyError(f"{where}: key 'run' = \"module:Class\" is required")
+        cls = _import_actor(table["run"], where)
+        raw_inputs = table.get("inputs", {})
+        if not isinstance(raw_inputs, dict):
+            raise TopologyError(f"{where} key 'inputs': expected a table")
+        inputs = {}
+        for inp, spec in raw_inputs.items():
+            iwhere = f"{where} key 'inputs.{inp}'"
+            if inp not in cls.inputs:
+                raise TopologyError(f"{iwhere}: {table['run']} has no input {inp!r} "
+                                    f"(inputs: {', '.join(cls.inputs) or 'none'})")
+            source, queue = _parse_input(spec, iwhere, topo.queue)
+            producer, _, output = source.partition("/")
+            if not producer or not output:
+                raise TopologyError(f"{iwhere}: {source!r} is not \"actor/output\"")
+            inputs[inp] = InputSpec(inp, producer, output, queue)
+        params = {k: v for k, v in table.items() if k not in ACTOR_RESERVED}
+        try:
+            build_params(cls.Params, params, where=where)
+        except ValueError as exc:
+            raise TopologyError(str(exc)) from None
+        keep = table.get("keep", False)
+        if not isinstance(keep, bool):
+            raise TopologyError(f"{where} key 'keep': expected true or false")
+        topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep)
+    for a in topo.actors.values():
+        for inp in a.inputs.values():
+            where = f"{path}: [actors.{a.name}] key 'inputs.{inp.name}'"
+            producer = topo.actors.get(inp.producer)
+            if producer is None:
+                raise TopologyError(f"{where}: dangling input, no actor {inp.producer!r}")
+            if inp.output not in producer.cls.outputs:
+                raise TopologyError(f"{where}: actor {inp.producer!r} ({producer.run}) has no "
+                                    f"output {inp.output!r} (outputs: "
+                                    f"{', '.join(producer.cls.outputs) or 'none'})")
+    _check_cycles(topo)
+    _prune(topo)
+    return topo
+
+
+def _prune(topo: Topology) -> None:
+    """Drop actors none of whose outputs is consumed, until nothing changes."""
+    changed = True
+    while changed:
+        changed = False
+        for a in topo.active.values():
+            if a.keep or not a.cls.outputs:
+                continue
+            if not any(topo.consumers(a.name, out) for out in a.cls.outputs):
+                a.pruned = True
+                changed = True
+
+
+def _check_cycles(topo: Topology) -> None:
+    """A cycle must contain a clock source (an actor with run()), or nothing would start it."""
+    edges = {n: {i.producer for i in a.inputs.values()} for n, a in topo.actors.items()}
+    index, low, stack, on_stack, comps = {}, {}, [], set(), []
+
+    def strongconnect(v, counter=[0]):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in edges[v]:
+            if w not in index:
+                strongconnect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            comps.append(comp)
+
+    for v in edges:
+        if v not in index:
+            strongconnect(v)
+    for comp in comps:
+        if len(comp) == 1 and comp[0] not in edges[comp[0]]:
+            continue
+        if not any(hasattr(topo.actors[n].cls, "run") for n in comp):
+            raise TopologyError(f"{topo.path}: cycle {' -> '.join(sorted(comp))} has no clock "
+                                f"source (no actor in it defines run())")

@@ -1,0 +1,66 @@
+"""Entry point of one actor process: ``python -m sebvs.runtime.worker SPEC.json``.
+
+The supervisor writes the spec (actor class, parameters, endpoints) and starts this
+module with the actor's log file as stdout/stderr.
+"""
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import importlib
+import json
+import logging
+import os
+import signal
+import sys
+
+from .params import build_params
+
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Ask the kernel to SIGTERM us if the supervisor dies, so no actor is orphaned."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent_pid:  # it died before we asked
+        os._exit(1)
+
+
+def load_class(path: str):
+    module_name, _, cls_name = path.partition(":")
+    module = importlib.import_module(module_name)
+    return getattr(module, cls_name)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    with open(argv[0]) as f:
+        spec = json.load(f)
+    _die_with_parent(spec["supervisor_pid"])
+    logging.basicConfig(level=getattr(logging, spec.get("log_level", "INFO")),
+                        format=f"%(asctime)s {spec['name']} %(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    from .node import Node  # after logging is configured
+
+    cls = load_class(spec["run"])
+    params = build_params(cls.Params, spec["params"], where=f"actor {spec['name']!r}")
+
+    def make_actor(node):
+        return cls(spec["name"], params, seed=spec["seed"], clock=spec["clock"],
+                   consumed=frozenset(spec["consumed"]), connected=frozenset(spec["inputs"]),
+                   node=node)
+
+    async def amain() -> int:
+        node = Node(spec, make_actor)
+        return await node.run(spec.get("supervisor"))
+
+    code = asyncio.run(amain())
+    logging.getLogger("sebvs.worker").info("actor %s exits with %d", spec["name"], code)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
