@@ -95,8 +95,8 @@ def _cmd_ctl(args) -> int:
             return 2
         requests = []
         for text in args.args:
-            (key, *rest), value = parse_override(f"x.{text}")
-            requests.append({"cmd": "set", "key": ".".join([key, *rest]), "value": value})
+            parts, value = parse_override(f"{args.actor}.{text}")
+            requests.append({"cmd": "set", "key": ".".join(parts[1:]), "value": value})
     elif args.command == "get":
         requests = [{"cmd": "get", "key": k} for k in args.args] or [{"cmd": "get"}]
     else:

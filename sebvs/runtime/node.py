@@ -33,6 +33,7 @@ TELEMETRY_PERIOD_S = 0.1
 TELEMETRY_MAX_RECORDS = 4096     # per period; beyond it records are counted, not kept
 HANDLER_WINDOW = 2048            # handler times kept for `stats`
 DRAIN_BATCH = 64                 # messages per reader callback before yielding to the loop
+DRAIN_BUDGET_NS = 5_000_000      # ... or this much handler time, whichever comes first
 
 log = logging.getLogger("sebvs.node")
 
@@ -283,12 +284,16 @@ class Node:
         Handlers start eagerly, without a task or future per message: most finish without
         suspending. One that suspends continues as a task, and this input waits for it, so
         each input's messages are handled in order. At most DRAIN_BATCH messages per call,
-        so one busy input cannot starve the others or the control socket.
+        (or DRAIN_BUDGET_NS) per call, so one busy input cannot starve the others or the
+        control socket.
         """
         if inp.busy is not None or self.actor.stopping.is_set():
             return
         sock, st = inp.socket, inp.stats
+        budget_end = time.monotonic_ns() + DRAIN_BUDGET_NS
         for _ in range(DRAIN_BATCH):
+            if time.monotonic_ns() > budget_end:
+                break
             try:
                 frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
@@ -532,6 +537,9 @@ class Node:
             if out.ring is not None:
                 out.ring.close(unlink=True)
         self.reader.close()
+        for sock in [i.socket for i in self.inputs.values()] + \
+                [o.socket for o in self.outputs.values()] + [self.telemetry_socket]:
+            sock.close(linger=0)  # the shadow context's sockets: term() below would wait on them
         self.ctx.destroy(linger=0)
         return getattr(self, "exit_code", 0)
 

@@ -3,9 +3,14 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import time
 from pathlib import Path
 
+from .shm import remove_run_rings
 from .supervisor import socket_root
+
+STALE_GRACE_S = 10   # a run being set up has a pointer before its run.json
 
 
 def _alive(pid: int | None) -> bool:
@@ -20,16 +25,25 @@ def _alive(pid: int | None) -> bool:
     return True
 
 
-def live_runs() -> list[dict]:
-    """run.json of every run whose supervisor is alive, newest first."""
+def live_runs(collect_stale: bool = True) -> list[dict]:
+    """run.json of every run whose supervisor is alive, newest first.
+
+    A socket directory whose supervisor died without cleaning up (kill -9) is removed,
+    together with any shared-memory ring of that run.
+    """
     runs = []
     for pointer in socket_root().glob("sebvs-*/rundir"):
         try:
             info = json.loads((Path(pointer.read_text().strip()) / "run.json").read_text())
         except (OSError, ValueError):
-            continue
-        if _alive(info.get("supervisor_pid")) and info.get("status") in ("starting", "running"):
-            runs.append(info)
+            info = {}
+        if _alive(info.get("supervisor_pid")):
+            if info.get("status") in ("starting", "running"):
+                runs.append(info)
+        elif collect_stale and time.time() - pointer.stat().st_mtime > STALE_GRACE_S:
+            run_id = pointer.parent.name.removeprefix("sebvs-")
+            remove_run_rings(run_id)
+            shutil.rmtree(pointer.parent, ignore_errors=True)
     runs.sort(key=lambda i: i.get("started_at", ""), reverse=True)
     return runs
 
