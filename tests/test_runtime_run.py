@@ -170,7 +170,9 @@ def test_kill_9_is_noticed_reported_and_stops_the_run(tmp_path):
 
 
 def test_restart_policy_restarts_a_dead_actor(tmp_path):
-    sup = start(tmp_path, SMALL + ["topology.restart=restart"])
+    sup = start(tmp_path, SMALL + ["topology.restart=restart", "relay.mode=copy", "source.width=320",
+                                   "source.height=240"])   # 230 KB frames: through rings
+    first_pid = sup.procs["relay"].popen.pid
     seen = {}
 
     def kill_and_watch():
@@ -180,6 +182,7 @@ def test_restart_policy_restarts_a_dead_actor(tmp_path):
         seen["before"] = ctl(sup, "sink", cmd="stats")["result"]["inputs"]["frames"]["handled"]
         time.sleep(2.0)
         seen["after"] = ctl(sup, "sink", cmd="stats")["result"]["inputs"]["frames"]["handled"]
+        seen["rings"] = [p.name for p in Path("/dev/shm").glob(f"sebvs-{sup.run_id}-relay-*")]
 
     watcher = threading.Thread(target=kill_and_watch)
     watcher.start()
@@ -187,7 +190,9 @@ def test_restart_policy_restarts_a_dead_actor(tmp_path):
     watcher.join()
     assert code == 0
     assert sup.procs["relay"].restarts == 1
+    assert sup.procs["relay"].popen.pid != first_pid
     assert seen["after"] > seen["before"] + 20   # frames flow again through the new relay
+    assert seen["rings"] and all(f"-{first_pid}-" not in n for n in seen["rings"])
     assert_clean(sup)
 
 
@@ -292,8 +297,11 @@ def test_cli_run_ctl_ps_and_ctrl_c(tmp_path):
         bad = sebvs("ctl", run_json["rundir"], "relay", "set", "mode=teleport")
         assert bad.returncode == 1 and "teleport" in bad.stdout
         assert sebvs("ctl", "relay", "stats").returncode == 0   # newest live run
-        prof = sebvs("profile", "--for", "1")
+        prof = sebvs("profile", "--for", "1", "--json", str(tmp_path / "p.json"),
+                     "--plot", str(tmp_path / "p.png"))
         assert "source > relay > sink" in prof.stdout
+        assert json.loads((tmp_path / "p.json").read_text())["edges"]
+        assert (tmp_path / "p.png").stat().st_size > 10_000
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         proc.wait(5)

@@ -163,10 +163,10 @@ class RingReader:
         self._maps.clear()
 
 
-def remove_run_rings(run_id: str) -> list[str]:
-    """Unlink every ring of a run (supervisor cleanup, also after a crash)."""
+def remove_run_rings(run_id: str, pattern: str = "*") -> list[str]:
+    """Unlink the rings of a run matching ``pattern`` (all by default), e.g. after a crash."""
     removed = []
-    for path in SHM_DIR.glob(f"sebvs-{run_id}-*"):
+    for path in SHM_DIR.glob(f"sebvs-{run_id}-{pattern}"):
         try:
             path.unlink()
             removed.append(path.name)

@@ -243,6 +243,12 @@ class Supervisor:
                     dead.append(p)
         return dead
 
+    def _remove_rings_of(self, p: _Proc) -> None:
+        """A dead producer's rings: readers that still map them keep their pages."""
+        for out, o in self.specs[p.name]["outputs"].items():
+            if o["ring"]:
+                remove_run_rings(self.run_id, f"{p.name}-{out}-{p.popen.pid}-*")
+
     def _death_report(self, p: _Proc, when: str = "") -> str:
         code = p.exit_code
         how = f"signal {signal.Signals(-code).name}" if code is not None and code < 0 \
@@ -261,6 +267,7 @@ class Supervisor:
             if t_end is not None and time.monotonic() >= t_end:
                 break
             for p in self._reap():
+                self._remove_rings_of(p)
                 if p.exit_code == 0:
                     self.echo(f"sebvs: actor {p.name!r} finished; ending the run")
                     return self.stop()
