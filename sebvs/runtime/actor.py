@@ -40,6 +40,7 @@ class Actor:
         self.log = logging.getLogger(f"sebvs.actor.{name}")
         self.stopping = asyncio.Event()
         self._node = node
+        self._sleepers: set[asyncio.Future] = set()
 
     # --- lifecycle hooks, overridden by actors -------------------------------------
     async def setup(self) -> None:
@@ -70,14 +71,27 @@ class Actor:
         self._node.event(kind, fields)
 
     async def sleep_until(self, t_ns: int) -> bool:
-        """Sleep until monotonic time ``t_ns``; returns False if the actor is stopping."""
+        """Sleep until monotonic time ``t_ns``; returns False if the actor is stopping.
+
+        One future and one timer, woken early by a stop: a paced source calls this after
+        every send, so it must cost next to nothing.
+        """
         delay = (t_ns - time.monotonic_ns()) / 1e9
-        if delay > 0:
+        if delay > 0 and not self.stopping.is_set():
+            loop = asyncio.get_running_loop()
+            wake = loop.create_future()
+            timer = loop.call_later(delay, _resolve, wake)
+            self._sleepers.add(wake)
             try:
-                await asyncio.wait_for(self.stopping.wait(), delay)
-            except asyncio.TimeoutError:
-                pass
+                await wake
+            finally:
+                timer.cancel()
+                self._sleepers.discard(wake)
         return not self.stopping.is_set()
+
+    def _wake_sleepers(self) -> None:
+        for wake in list(self._sleepers):
+            _resolve(wake)
 
     def request_stop(self, reason: str = "") -> None:
         """End this actor (and, as a finished source, let the supervisor end the run)."""
@@ -97,3 +111,8 @@ class Actor:
     def stats(self) -> dict:
         """Extra numbers for ``sebvs ctl RUN ACTOR stats``."""
         return {}
+
+
+def _resolve(future: asyncio.Future) -> None:
+    if not future.done():
+        future.set_result(None)

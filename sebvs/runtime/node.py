@@ -465,6 +465,7 @@ class Node:
         if self.finished_reason is None:
             self.finished_reason = reason or "finished"
         self.actor.stopping.set()
+        self.actor._wake_sleepers()
 
     async def run(self, supervisor_endpoint: str | None, ready_timeout_s: float = 60) -> int:
         loop = asyncio.get_running_loop()
