@@ -10,7 +10,7 @@ have 'libEGL.so.1 ' || missing+=(libegl1)
 have 'libEGL_mesa.so.0 ' || missing+=(libegl-mesa0)
 have 'libOpenGL.so.0 ' || missing+=(libopengl0)
 have 'libOSMesa.so' || missing+=(libosmesa6)
-ls /usr/lib/*/dri/swrast_dri.so /usr/lib/*/dri/*llvmpipe* >/dev/null 2>&1 || missing+=(libgl1-mesa-dri)
+compgen -G "/usr/lib/*/dri/swrast_dri.so" >/dev/null || missing+=(libgl1-mesa-dri)
 [ ${#missing[@]} -eq 0 ] && exit 0
 if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null; then
     echo "ensure_gl: installing ${pkgs[*]}" >&2
