@@ -1,0 +1,146 @@
+"""Closed-loop metrics of the paper's Tables 4 and 5, and the statistics to compare them.
+
+Navigation (Table 4), per episode, from privileged ground truth:
+    centroid error   distance of the target's image centroid from the image centre (px)
+    bbox width       the target's bounding-box width (px), a proxy for following distance
+    success          share of frames with the target within `radius` of the image centre;
+                     the paper's 200 px at 640 px, scaled with the image width
+    duration         seconds per trial
+Frames where the target is not visible count as failures and are left out of the error
+and width means (their share is reported as `visible`).
+
+Manipulation (Table 5), per prediction:
+    position error   |p_pred - p_expert| in mm
+    accuracy         share within 50 mm and 15 degrees of yaw (yaw compared modulo 90
+                     degrees: a cube looks the same after a quarter turn)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+PAPER_RADIUS_PX = 200.0
+PAPER_WIDTH_PX = 640.0
+ARM_POSITION_TOL_MM = 50.0
+ARM_YAW_TOL_DEG = 15.0
+
+
+def success_radius(image_width: int) -> float:
+    """The paper's 200 px success radius at 640 px, scaled to ``image_width``."""
+    return PAPER_RADIUS_PX * image_width / PAPER_WIDTH_PX
+
+
+@dataclass
+class NavEpisodeMetrics:
+    frames: int
+    visible: float              # share of frames with the target in view
+    centroid_error_px: float    # mean over visible frames (nan if none)
+    centroid_error_std_px: float
+    bbox_width_px: float        # mean over visible frames
+    success: float              # share of all frames within the radius
+    duration_s: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def nav_episode_metrics(centroids: np.ndarray, bbox_widths: np.ndarray, visible: np.ndarray,
+                        image_size: tuple[int, int], duration_s: float) -> NavEpisodeMetrics:
+    """Metrics of one navigation episode.
+
+    centroids: [T, 2] target centroid (u, v) in px; bbox_widths: [T] px;
+    visible: [T] bool; image_size: (width, height) px.
+    """
+    centroids = np.asarray(centroids, dtype=np.float64).reshape(-1, 2)
+    widths = np.asarray(bbox_widths, dtype=np.float64).reshape(-1)
+    visible = np.asarray(visible, dtype=bool).reshape(-1)
+    if not (len(centroids) == len(widths) == len(visible)):
+        raise ValueError(f"lengths differ: centroids {len(centroids)}, widths {len(widths)}, "
+                         f"visible {len(visible)}")
+    if len(visible) == 0:
+        raise ValueError("an episode without frames has no metrics")
+    width, height = image_size
+    centre = np.array([width / 2.0, height / 2.0])
+    err = np.linalg.norm(centroids - centre, axis=1)
+    ok = visible & np.isfinite(err)
+    radius = success_radius(width)
+    return NavEpisodeMetrics(
+        frames=int(len(visible)),
+        visible=float(ok.mean()),
+        centroid_error_px=float(err[ok].mean()) if ok.any() else math.nan,
+        centroid_error_std_px=float(err[ok].std()) if ok.any() else math.nan,
+        bbox_width_px=float(widths[ok].mean()) if ok.any() else math.nan,
+        success=float((ok & (err <= radius)).mean()),
+        duration_s=float(duration_s),
+    )
+
+
+def yaw_error_deg(yaw_pred, yaw_true, symmetry_deg: float = 90.0) -> np.ndarray:
+    """Smallest yaw difference in degrees, modulo the object's rotational symmetry."""
+    d = np.degrees(np.asarray(yaw_pred, dtype=np.float64) - np.asarray(yaw_true, np.float64))
+    d = np.mod(d + symmetry_deg / 2, symmetry_deg) - symmetry_deg / 2
+    return np.abs(d)
+
+
+def arm_metrics(pred: np.ndarray, expert: np.ndarray,
+                position_tol_mm: float = ARM_POSITION_TOL_MM,
+                yaw_tol_deg: float = ARM_YAW_TOL_DEG) -> dict:
+    """Table 5's error and accuracy. pred, expert: [N, 6] poses (x, y, z m; roll, pitch, yaw rad)."""
+    pred = np.asarray(pred, dtype=np.float64).reshape(-1, 6)
+    expert = np.asarray(expert, dtype=np.float64).reshape(-1, 6)
+    if pred.shape != expert.shape:
+        raise ValueError(f"shapes differ: pred {pred.shape}, expert {expert.shape}")
+    pos_mm = np.linalg.norm(pred[:, :3] - expert[:, :3], axis=1) * 1e3
+    yaw = yaw_error_deg(pred[:, 5], expert[:, 5])
+    within = (pos_mm <= position_tol_mm) & (yaw <= yaw_tol_deg)
+    return {"n": int(len(pos_mm)),
+            "position_error_mm": float(pos_mm.mean()) if len(pos_mm) else math.nan,
+            "position_error_std_mm": float(pos_mm.std()) if len(pos_mm) else math.nan,
+            "yaw_error_deg": float(yaw.mean()) if len(yaw) else math.nan,
+            "accuracy": float(within.mean()) if len(within) else math.nan,
+            "position_tol_mm": position_tol_mm, "yaw_tol_deg": yaw_tol_deg}
+
+
+def wilson_interval(successes: float, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95% Wilson score interval of a proportion (successes may be fractional frame counts)."""
+    if n <= 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _binom_two_sided(k: int, n: int) -> float:
+    """Exact two-sided p-value of k successes in n fair coin flips."""
+    if n == 0:
+        return 1.0
+    probs = np.array([math.comb(n, i) for i in range(n + 1)], dtype=np.float64) / 2.0 ** n
+    return float(min(1.0, probs[probs <= probs[k] * (1 + 1e-12)].sum()))
+
+
+def paired_comparison(a, b, seed: int = 0, n_boot: int = 2000) -> dict:
+    """Compare two modalities on the same seeds: per-seed values ``a`` and ``b``.
+
+    Returns the mean difference a - b, its 95% bootstrap interval (seeded), and the exact
+    sign test's two-sided p-value over the seeds where they differ.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"paired values need the same seeds: {a.shape} vs {b.shape}")
+    d = a - b
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return {"n": 0, "mean_diff": math.nan, "ci95": [math.nan, math.nan], "p_sign": 1.0,
+                "wins": 0, "losses": 0, "ties": 0}
+    rng = np.random.default_rng(seed)
+    boots = d[rng.integers(0, d.size, (n_boot, d.size))].mean(axis=1)
+    wins, losses = int((d > 0).sum()), int((d < 0).sum())
+    return {"n": int(d.size), "mean_diff": float(d.mean()),
+            "ci95": [float(np.percentile(boots, 2.5)), float(np.percentile(boots, 97.5))],
+            "p_sign": _binom_two_sided(min(wins, losses), wins + losses),
+            "wins": wins, "losses": losses, "ties": int(d.size - wins - losses)}
