@@ -1,0 +1,200 @@
+"""Aggregate per-episode results into the paper's tables (Markdown) and plots.
+
+``results`` is what `sebvs eval` writes to results.json::
+
+    {"task": "nav" | "arm", "clock": ..., "episodes": [
+        {"modality": "rgb" | "event" | "rgb+event" | "expert", "condition": "nominal",
+         "seed": 3, "metrics": {...}}, ...]}
+
+Navigation episode metrics are `NavEpisodeMetrics.as_dict()`; arm episode metrics hold
+`scenario` ("single" | "multi"), `pred` and `expert` poses, `latency_ms` (a list) and
+`grasp_success` (bool, or None when the grasp was not executed).
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+
+from .metrics import arm_metrics, paired_comparison, wilson_interval
+
+MODALITY_ORDER = ("expert", "rgb", "event", "rgb+event")
+NAME = {"expert": "Expert (reference)", "rgb": "RGB-only", "event": "Event-only",
+        "rgb+event": "RGB+Event"}
+
+
+def _ordered(keys) -> list:
+    return sorted(keys, key=lambda m: (MODALITY_ORDER.index(m) if m in MODALITY_ORDER else 99, m))
+
+
+def _group(episodes: list[dict], *keys) -> dict:
+    groups = defaultdict(list)
+    for ep in episodes:
+        groups[tuple(ep[k] if k in ep else ep["metrics"].get(k) for k in keys)].append(ep)
+    return groups
+
+
+def aggregate_nav(episodes: list[dict]) -> dict:
+    """Pool per-episode navigation metrics exactly (frame-weighted means and variances)."""
+    ms = [e["metrics"] for e in episodes]
+    frames = np.array([m["frames"] for m in ms], dtype=np.float64)
+    vis = np.array([m["visible"] for m in ms]) * frames          # visible frames per episode
+    ok = vis > 0
+    mu = np.array([m["centroid_error_px"] for m in ms])
+    sd = np.array([m["centroid_error_std_px"] for m in ms])
+    width = np.array([m["bbox_width_px"] for m in ms])
+    succ = np.array([m["success"] for m in ms]) * frames
+    n_vis = vis[ok].sum()
+    mean = float((vis[ok] * mu[ok]).sum() / n_vis) if n_vis else math.nan
+    var = float((vis[ok] * (sd[ok] ** 2 + mu[ok] ** 2)).sum() / n_vis - mean ** 2) if n_vis \
+        else math.nan
+    lo, hi = wilson_interval(float(succ.sum()), int(frames.sum()))
+    return {"episodes": len(ms), "frames": int(frames.sum()),
+            "centroid_error_px": mean, "centroid_error_std_px": math.sqrt(max(var, 0.0)),
+            "bbox_width_px": float((vis[ok] * width[ok]).sum() / n_vis) if n_vis else math.nan,
+            "success": float(succ.sum() / frames.sum()), "success_ci95": [lo, hi],
+            "duration_s": float(np.mean([m["duration_s"] for m in ms]))}
+
+
+def aggregate_arm(episodes: list[dict]) -> dict:
+    ms = [e["metrics"] for e in episodes]
+    acc = arm_metrics(np.array([m["pred"] for m in ms]), np.array([m["expert"] for m in ms]))
+    lat = np.concatenate([np.asarray(m.get("latency_ms") or [], np.float64) for m in ms]) \
+        if ms else np.array([])
+    grasps = [m.get("grasp_success") for m in ms if m.get("grasp_success") is not None]
+    lo, hi = wilson_interval(sum(grasps), len(grasps))
+    return {**acc,
+            "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else math.nan,
+            "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else math.nan,
+            "grasps": len(grasps),
+            "grasp_success": float(np.mean(grasps)) if grasps else math.nan,
+            "grasp_success_ci95": [lo, hi]}
+
+
+def _pct(x: float) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.1f}"
+
+
+def _num(x: float, fmt: str = ".1f") -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+
+def _paired_section(episodes: list[dict], value, label: str) -> list[str]:
+    """rgb+event against each other modality on the seeds both ran."""
+    by_mod = defaultdict(dict)
+    for e in episodes:
+        by_mod[e["modality"]][e["seed"]] = value(e)
+    if "rgb+event" not in by_mod:
+        return []
+    lines = []
+    for other in _ordered(m for m in by_mod if m not in ("rgb+event",)):
+        seeds = sorted(set(by_mod["rgb+event"]) & set(by_mod[other]))
+        if not seeds:
+            continue
+        r = paired_comparison([by_mod["rgb+event"][s] for s in seeds],
+                              [by_mod[other][s] for s in seeds])
+        lines.append(f"| RGB+Event vs {NAME.get(other, other)} | {r['n']} | "
+                     f"{100 * r['mean_diff']:+.1f} | [{100 * r['ci95'][0]:+.1f}, "
+                     f"{100 * r['ci95'][1]:+.1f}] | {r['wins']}/{r['losses']}/{r['ties']} | "
+                     f"{r['p_sign']:.3f} |")
+    if not lines:
+        return []
+    return ["", f"Paired on the same seeds ({label}, percentage points; bootstrap 95% "
+                f"interval; exact sign test):", "",
+            "| comparison | seeds | mean diff | 95% CI | wins/losses/ties | p |",
+            "|---|---|---|---|---|---|", *lines]
+
+
+def render_report(results: dict) -> str:
+    task = results["task"]
+    eps = results["episodes"]
+    lines = [f"# Closed-loop evaluation: {task}", ""]
+    meta = {k: v for k, v in results.items() if k not in ("episodes", "task")}
+    if meta:
+        lines += [", ".join(f"{k}: {v}" for k, v in meta.items()), ""]
+    if task == "nav":
+        lines += ["Success: share of frames with the target within 200 px of the image centre "
+                  "at 640 px (radius scaled with resolution); the Wilson interval counts "
+                  "frames, which are correlated within an episode, so it is optimistic; the "
+                  "paired comparison treats episodes as the unit.", ""]
+        for (cond,), group in sorted(_group(eps, "condition").items()):
+            lines += [f"## Condition: {cond}", "",
+                      "| Model | Episodes | Centroid error (px) | BBox width (px) | "
+                      "Success rate (% within threshold) [95% CI] | Trial duration (s) |",
+                      "|---|---|---|---|---|---|"]
+            by_mod = _group(group, "modality")
+            for (mod,) in [(m,) for m in _ordered(m for (m,) in by_mod)]:
+                a = aggregate_nav(by_mod[(mod,)])
+                lo, hi = a["success_ci95"]
+                lines.append(f"| {NAME.get(mod, mod)} | {a['episodes']} | "
+                             f"{_num(a['centroid_error_px'])} ± "
+                             f"{_num(a['centroid_error_std_px'])} | "
+                             f"{_num(a['bbox_width_px'])} | {_pct(a['success'])} "
+                             f"[{_pct(lo)}, {_pct(hi)}] | {_num(a['duration_s'])} |")
+            lines += _paired_section(group, lambda e: e["metrics"]["success"], "success")
+            lines.append("")
+    elif task == "arm":
+        lines += [f"Accuracy: share of predictions within 50 mm and 15 degrees of yaw of the "
+                  f"expert's pre-grasp pose (yaw modulo 90 degrees).", ""]
+        for (cond, scen), group in sorted(_group(eps, "condition", "scenario").items()):
+            lines += [f"## Condition: {cond}, {scen}-object", "",
+                      "| Model | Episodes | Position error (mm) | Accuracy (%) | "
+                      "Inference latency p50 / p99 (ms) | Grasp success (%) [95% CI] |",
+                      "|---|---|---|---|---|---|"]
+            by_mod = _group(group, "modality")
+            for mod in _ordered(m for (m,) in by_mod):
+                a = aggregate_arm(by_mod[(mod,)])
+                lo, hi = a["grasp_success_ci95"]
+                lines.append(f"| {NAME.get(mod, mod)} | {a['n']} | "
+                             f"{_num(a['position_error_mm'])} ± "
+                             f"{_num(a['position_error_std_mm'])} | {_pct(a['accuracy'])} | "
+                             f"{_num(a['latency_p50_ms'], '.2f')} / "
+                             f"{_num(a['latency_p99_ms'], '.2f')} | "
+                             f"{_pct(a['grasp_success'])} [{_pct(lo)}, {_pct(hi)}] |")
+            lines += _paired_section(
+                [e for e in group if e["metrics"].get("grasp_success") is not None],
+                lambda e: float(e["metrics"]["grasp_success"]), "grasp success")
+            lines.append("")
+    else:
+        raise ValueError(f"unknown task {task!r} in results")
+    return "\n".join(lines)
+
+
+def plot_success(results: dict, path) -> None:
+    """Success by condition and modality, with 95% Wilson intervals."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eps = results["episodes"]
+    nav = results["task"] == "nav"
+    conds = sorted({e["condition"] for e in eps})
+    mods = _ordered({e["modality"] for e in eps})
+    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(conds), 3.6))
+    width = 0.8 / max(1, len(mods))
+    for j, mod in enumerate(mods):
+        vals, errs = [], [[], []]
+        for cond in conds:
+            group = [e for e in eps if e["condition"] == cond and e["modality"] == mod]
+            if not group:
+                vals.append(np.nan)
+                errs[0].append(0)
+                errs[1].append(0)
+                continue
+            a = aggregate_nav(group) if nav else aggregate_arm(group)
+            v = a["success"] if nav else a["grasp_success"]
+            lo, hi = a["success_ci95"] if nav else a["grasp_success_ci95"]
+            vals.append(100 * v)
+            errs[0].append(100 * (v - lo) if not math.isnan(lo) else 0)
+            errs[1].append(100 * (hi - v) if not math.isnan(hi) else 0)
+        x = np.arange(len(conds)) + (j - (len(mods) - 1) / 2) * width
+        ax.bar(x, vals, width, yerr=errs, capsize=3, label=NAME.get(mod, mod))
+    ax.set_xticks(np.arange(len(conds)), conds)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("success rate (%)" if nav else "grasp success (%)")
+    ax.legend(fontsize=8, loc="lower left")
+    ax.set_title(f"{results['task']}: success by condition and modality (95% Wilson)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,57 @@
+import numpy as np
+import pytest
+
+from sebvs.eval.metrics import nav_episode_metrics
+from sebvs.eval.report import aggregate_nav, plot_success, render_report
+
+
+def nav_episode(mod, seed, success_frames, cond="nominal"):
+    visible = [True] * 10
+    centroids = [[80, 80]] * success_frames + [[80, 150]] * (10 - success_frames)
+    m = nav_episode_metrics(centroids, [20] * 10, visible, (160, 160), 10.0).as_dict()
+    return {"modality": mod, "condition": cond, "seed": seed, "metrics": m}
+
+
+def test_aggregate_nav_pools_frames_exactly():
+    eps = [nav_episode("rgb", 0, 10), nav_episode("rgb", 1, 5)]
+    a = aggregate_nav(eps)
+    errors = np.array([0.0] * 10 + [0.0] * 5 + [70.0] * 5)
+    assert a["centroid_error_px"] == pytest.approx(errors.mean())
+    assert a["centroid_error_std_px"] == pytest.approx(errors.std())
+    assert a["success"] == pytest.approx(15 / 20)
+    assert a["success_ci95"][0] < 0.75 < a["success_ci95"][1]
+
+
+def test_nav_report_renders_tables_and_paired_comparison(tmp_path):
+    eps = []
+    for seed in range(6):
+        eps += [nav_episode("expert", seed, 10), nav_episode("rgb", seed, 4),
+                nav_episode("rgb+event", seed, 9), nav_episode("rgb+event", seed, 8, "fast")]
+    results = {"task": "nav", "clock": "lockstep", "episodes": eps}
+    text = render_report(results)
+    assert "## Condition: nominal" in text and "## Condition: fast" in text
+    assert "| Expert (reference) | 6 |" in text
+    assert "| RGB+Event vs RGB-only | 6 | +50.0 |" in text
+    assert "6/0/0" in text
+    plot_success(results, tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 5000
+
+
+def test_arm_report_renders():
+    eps = []
+    for seed in range(4):
+        for mod, off in (("rgb", 0.08), ("rgb+event", 0.01)):
+            eps.append({"modality": mod, "condition": "nominal", "seed": seed,
+                        "metrics": {"scenario": "single", "pred": [off, 0, 0.2, 0, 0, 0],
+                                    "expert": [0, 0, 0.2, 0, 0, 0], "latency_ms": [3.0, 4.0],
+                                    "grasp_success": mod == "rgb+event"}})
+    text = render_report({"task": "arm", "episodes": eps})
+    assert "## Condition: nominal, single-object" in text
+    assert "| RGB+Event | 4 | 10.0 ± 0.0 | 100.0 |" in text
+    assert "| RGB-only | 4 | 80.0 ± 0.0 | 0.0 |" in text
+    assert "RGB+Event vs RGB-only | 4 | +100.0" in text
+
+
+def test_unknown_task_is_an_error():
+    with pytest.raises(ValueError, match="unknown task"):
+        render_report({"task": "fly", "episodes": []})
