@@ -1,0 +1,144 @@
+"""The `Scene` interface every MuJoCo task implements (nav, arm).
+
+A scene is pure library code: it builds an MJCF model from its config, resets episodes from
+a seeded generator, applies commands and scripted motion, and reports privileged truth. It
+never touches sockets or processes: the sim and camera actors wire it to the runtime.
+
+Split of roles across processes:
+  sim actor     compile() -> reset() -> loop { scripted(); mj_step } with apply_command()
+                at control ticks, truth()/done() to end episodes, state() on the wire.
+  camera actor  compile() its own model from the same config, then set_state() +
+                mj_forward (or mj_kinematics) and render `cameras`.
+
+Config is deterministic: mjcf() depends on the config only, never on the episode seed, so
+the camera's model is identical to the sim's.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+
+# Integrator names accepted in config -> MuJoCo enum (mujoco.mjtIntegrator).
+INTEGRATORS: dict[str, int] = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
+if hasattr(mujoco.mjtIntegrator, "mjINT_DISCRETE"):   # MuJoCo >= 3.13
+    INTEGRATORS["discrete"] = mujoco.mjtIntegrator.mjINT_DISCRETE
+
+# Keys every scene accepts (physics settings the sim actor may pass through).
+COMMON_KEYS = frozenset({"integrator", "timestep", "shadows"})
+
+# The render-speed settings every scene's MJCF carries: no MSAA, no shadow map.
+FAST_VISUAL = '<visual><quality offsamples="0" shadowsize="0"/></visual>'
+
+
+class Scene(ABC):
+    """One task's MuJoCo world.
+
+    Class attributes:
+      task         "nav" | "arm"
+      command_dim  length of the command vector apply_command() takes
+      cameras      camera names present in the MJCF
+      defaults     config key -> default value (subclasses extend; unknown keys are errors)
+
+    Config (constructor keywords): scene settings from the topology, e.g. variant, conditions,
+    plus the COMMON_KEYS: integrator ("euler" | "implicitfast" | "rk4" | "discrete" |
+    "implicit"), timestep (s, > 0), shadows (bool, default False).
+    """
+
+    task: ClassVar[str]
+    command_dim: ClassVar[int]
+    cameras: ClassVar[tuple[str, ...]]
+    defaults: ClassVar[dict[str, Any]] = {"integrator": None, "timestep": None,
+                                          "shadows": False}
+
+    def __init__(self, **config: Any) -> None:
+        allowed = set(self.defaults)
+        for key in config:
+            if key not in allowed:
+                raise ValueError(f"{self.task} scene: unknown config key {key!r} "
+                                 f"(known: {', '.join(sorted(allowed))})")
+        self.config: dict[str, Any] = {**self.defaults, **config}
+        integ = self.config["integrator"]
+        if integ is not None and integ not in INTEGRATORS:
+            raise ValueError(f"{self.task} scene: integrator {integ!r} is not one of "
+                             f"{sorted(INTEGRATORS)}")
+        ts = self.config["timestep"]
+        if ts is not None and not (isinstance(ts, (int, float)) and 0 < ts <= 0.1):
+            raise ValueError(f"{self.task} scene: timestep {ts!r} must be in (0, 0.1] s")
+        self.validate()
+
+    def validate(self) -> None:
+        """Check scene-specific config values; raise ValueError naming the bad key."""
+
+    # -- model ---------------------------------------------------------------------------
+    @abstractmethod
+    def mjcf(self) -> str:
+        """Full MJCF xml, a function of the config only (never of an episode seed)."""
+
+    def compile(self) -> mujoco.MjModel:
+        """The model from mjcf(), with the config's integrator and timestep applied."""
+        model = mujoco.MjModel.from_xml_string(self.mjcf())
+        self.configure(model)
+        return model
+
+    def configure(self, model: mujoco.MjModel) -> None:
+        """Apply integrator/timestep from config to an existing model (also for tests)."""
+        if self.config["integrator"] is not None:
+            model.opt.integrator = INTEGRATORS[self.config["integrator"]]
+        if self.config["timestep"] is not None:
+            model.opt.timestep = float(self.config["timestep"])
+        # Energy is needed by the stability checks (sebvs.sim.stability).
+        model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
+
+    def light_xml(self) -> str:
+        """`castshadow` attribute value for lights: shadows only when the config asks."""
+        return "true" if self.config["shadows"] else "false"
+
+    # -- episode -------------------------------------------------------------------------
+    @abstractmethod
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData,
+              rng: np.random.Generator) -> None:
+        """Start a new episode: mj_resetData, randomise from `rng`, mj_forward."""
+
+    @abstractmethod
+    def apply_command(self, model: mujoco.MjModel, data: mujoco.MjData,
+                      command: np.ndarray) -> None:
+        """Set data.ctrl (or mocap) from `command` (shape (command_dim,)).
+
+        Raises ValueError on a wrong shape or NaN/inf (the caller keeps its last good
+        command); clips to [-1, 1] or to physical limits.
+        """
+
+    def scripted(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Called before every mj_step: moving targets, light flicker, ..."""
+
+    @abstractmethod
+    def truth(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict:
+        """Privileged ground truth, msgpack-able (lists, floats, ints, bools, str)."""
+
+    def done(self, model: mujoco.MjModel, data: mujoco.MjData) -> str | None:
+        """A reason string when the episode ends by success/failure, else None."""
+        return None
+
+    # -- state on the wire ----------------------------------------------------------------
+    def state(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        """What the camera needs to pose its own model: copies of qpos, mocap_pos,
+        mocap_quat (float64; shapes (nq,), (nmocap, 3), (nmocap, 4)) and, when the scene
+        animates lights, `light` (float32 (nlight,) diffuse scale)."""
+        return {"qpos": data.qpos.copy(), "mocap_pos": data.mocap_pos.copy(),
+                "mocap_quat": data.mocap_quat.copy()}
+
+    def set_state(self, model: mujoco.MjModel, data: mujoco.MjData,
+                  state: dict[str, np.ndarray]) -> None:
+        """Inverse of state(); the caller then runs mj_kinematics (or mj_forward)."""
+        data.qpos[:] = state["qpos"]
+        if model.nmocap:
+            data.mocap_pos[:] = state["mocap_pos"]
+            data.mocap_quat[:] = state["mocap_quat"]
