@@ -6,6 +6,11 @@ lazily so a nav-only process never imports the arm (and vice versa).
 from __future__ import annotations
 
 import importlib
+import os
+
+# mujoco picks its GL backend when first imported; every sebvs.sim module imports it, so
+# the default is set here, before any of them (see sebvs/sim/render.py; osmesa works too).
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 from .scene import Scene
 

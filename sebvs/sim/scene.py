@@ -123,6 +123,11 @@ class Scene(ABC):
     def truth(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict:
         """Privileged ground truth, msgpack-able (lists, floats, ints, bools, str)."""
 
+    def limits(self) -> "Limits":
+        """What counts as physical here, for sebvs.sim.stability (override per scene)."""
+        from .stability import Limits
+        return Limits()
+
     def done(self, model: mujoco.MjModel, data: mujoco.MjData) -> str | None:
         """A reason string when the episode ends by success/failure, else None."""
         return None
