@@ -1,0 +1,134 @@
+"""The ERP policy actor: camera RGB and/or accumulated event frames in, an action out.
+
+Inputs  rgb     from the camera:       arrays["rgb"]   uint8 [H, W, 3], tick
+        events  from the accumulator:  arrays["frame"] uint8 [2, H, W], tick
+Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 [6]} (arm),
+        tick = the input tick, meta {"modality", "input_ticks", "inference_ms", ...}
+
+Every listed checkpoint is loaded in setup; `sebvs ctl RUN policy set modality=event`
+swaps between them at the next tick. A modality without a checkpoint, or whose inputs
+the topology does not wire, is refused and the current one stays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from sebvs.runtime import Actor, Message
+from sebvs.runtime.stats import summarize
+
+INFERENCE_WINDOW = 2000   # latencies kept for stats()
+
+
+class Policy(Actor):
+    inputs = ("rgb", "events")
+    outputs = ("action",)
+
+    @dataclass
+    class Params:
+        checkpoints: dict = field(default_factory=dict)   # modality -> .pt path
+        directory: str = ""          # or: a directory of <task>-<modality>.pt ...
+        task: str = "nav"            # ... for this task
+        modalities: list[str] = field(default_factory=list)   # ... these (default: all three)
+        modality: str = "rgb+event"  # the active one
+        threads: int = 1             # torch.set_num_threads
+
+    async def setup(self) -> None:
+        import torch
+
+        from sebvs.policy.infer import PolicySet, TickSync, resolve_checkpoints
+        from sebvs.policy.inputs import MODALITY_INPUTS
+        self._inputs_of = MODALITY_INPUTS
+        p = self.params
+        torch.set_num_threads(max(1, p.threads))
+        table = resolve_checkpoints(p.checkpoints, p.directory, p.task, p.modalities)
+        self.policies = PolicySet(table, task=p.task if p.directory else None)
+        self._check_usable(p.modality)
+        self.sync = TickSync(tuple(s for s in ("rgb", "events") if s in self.connected))
+        self.policies.warm_up()
+        self.emitted = 0
+        self.skipped_ticks = 0
+        self.swaps: list[dict] = []
+        self.inference_ms: list[float] = []
+        self.log.info("loaded %s (%s); active %s; inputs wired: %s",
+                      ", ".join(self.policies.modalities), self.policies.task, p.modality,
+                      ", ".join(sorted(self.connected)) or "none")
+
+    def _check_usable(self, modality: str) -> None:
+        """Raise ValueError unless ``modality`` has a loaded checkpoint and wired inputs."""
+        if modality not in self._inputs_of:
+            raise ValueError(f"unknown modality {modality!r} "
+                             f"(one of {', '.join(self._inputs_of)})")
+        if modality not in self.policies.policies:
+            raise ValueError(f"modality {modality!r} has no checkpoint loaded "
+                             f"(loaded: {', '.join(self.policies.modalities)})")
+        missing = [s for s in self._inputs_of[modality] if s not in self.connected]
+        if missing:
+            raise ValueError(f"modality {modality!r} needs input(s) {', '.join(missing)}, "
+                             f"which this topology does not wire to {self.name!r}")
+
+    # ------------------------------------------------------------------ inputs
+    async def on_rgb(self, msg: Message) -> None:
+        await self._receive("rgb", msg, msg.arrays["rgb"])
+
+    async def on_events(self, msg: Message) -> None:
+        await self._receive("events", msg, msg.arrays["frame"])
+
+    async def _receive(self, stream: str, msg: Message, array) -> None:
+        if msg.tick is None:
+            raise ValueError(f"{stream} message from {msg.source} has no tick")
+        self.sync.put(stream, msg.tick, array, msg.t_sim)
+        await self._step(msg)
+
+    async def _step(self, msg: Message | None) -> None:
+        """Run the active modality on every tick now complete, oldest first."""
+        while (tick := self.sync.ready(self.params.modality)) is not None:
+            modality = self.params.modality
+            last = self.sync.last_tick
+            if last is not None and tick > last + 1:
+                self.skipped_ticks += tick - last - 1
+            frames = self.sync.take(modality, tick)
+            y, prep_ms, inf_ms = self.policies.act(
+                modality, **{s: a for s, (a, _) in frames.items()})
+            t_sim = next(iter(frames.values()))[1]
+            meta = {"modality": modality, "input_ticks": {s: tick for s in frames},
+                    "inference_ms": round(inf_ms, 4), "preprocess_ms": round(prep_ms, 4)}
+            # the message that completed this tick carries the hop stamps on
+            parent = msg if msg is not None and msg.tick == tick else None
+            await self.emit("action", {self.policies.output: y}, meta=meta, t_sim=t_sim,
+                            tick=tick, parent=parent)
+            self.emitted += 1
+            self.inference_ms.append(inf_ms)
+            if len(self.inference_ms) > INFERENCE_WINDOW:
+                del self.inference_ms[:INFERENCE_WINDOW // 2]
+            self.telemetry("inference", ms=inf_ms, preprocess_ms=prep_ms, tick=tick,
+                           modality=modality)
+
+    # ------------------------------------------------------------------ control
+    async def control(self, key: str, value) -> dict:
+        if key == "modality":
+            if not isinstance(value, str):
+                raise ValueError(f"modality must be a string, got {value!r}")
+            self._check_usable(value)       # refused: the current modality stays
+            old = self.params.modality
+            last = self.sync.last_tick
+            effective = 0 if last is None else last + 1
+            self.params.modality = value
+            swap = {"from": old, "to": value, "effective_tick": effective}
+            self.swaps.append(swap)
+            self.telemetry("modality_swap", **swap)
+            self.log.info("modality %s -> %s from tick %d", old, value, effective)
+            # frames of the next tick may already be buffered: the new modality takes them
+            await self._step(None)
+            return {"modality": value, "effective_tick": effective}
+        if key == "threads":
+            import torch
+            result = await super().control(key, value)
+            torch.set_num_threads(max(1, self.params.threads))
+            return result
+        raise ValueError(f"{key!r} cannot change while running (only modality, threads)")
+
+    def stats(self) -> dict:
+        return {"modality": self.params.modality, "loaded": self.policies.modalities,
+                "emitted": self.emitted, "last_tick": self.sync.last_tick,
+                "skipped_ticks": self.skipped_ticks, "swaps": self.swaps,
+                "inference_ms": summarize(self.inference_ms, 1.0)}

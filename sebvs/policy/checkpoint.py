@@ -1,0 +1,82 @@
+"""Checkpoints: ``<task>-<modality>.pt`` (a state_dict) beside ``<task>-<modality>.json`` (config).
+
+The weights are a plain state_dict saved with torch.save and read back with
+``torch.load(weights_only=True)``: no pickled code runs when a checkpoint is opened.
+Everything needed to rebuild the model and prepare its input (task, modality, size,
+channels, normalisation) is in the JSON config.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .inputs import MODALITY_INPUTS, Normalisation, channels, check_modality
+
+CONFIG_VERSION = 1
+
+
+def checkpoint_paths(out_dir: str | Path, task: str, modality: str) -> tuple[Path, Path]:
+    stem = Path(out_dir) / f"{task}-{modality}"
+    return stem.with_suffix(".pt"), stem.with_suffix(".json")
+
+
+def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
+    """Write the state_dict and its config; returns the .pt path."""
+    import torch
+    pt, js = checkpoint_paths(out_dir, config["task"], config["modality"])
+    pt.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(model.state_dict(), pt)
+    js.write_text(json.dumps({"version": CONFIG_VERSION, **config}, indent=2) + "\n")
+    return pt
+
+
+def model_config(task: str, modality: str, norm: Normalisation) -> dict:
+    """The part of a config that decides the architecture and its input."""
+    order = {"rgb": ["r", "g", "b"], "events": ["on", "off"]}
+    return {"task": task, "modality": modality, "size": norm.size,
+            "channels": channels(modality),
+            "channel_order": [c for s in MODALITY_INPUTS[modality] for c in order[s]],
+            "normalisation": norm.to_dict()}
+
+
+def read_config(pt_path: str | Path) -> dict:
+    js = Path(pt_path).with_suffix(".json")
+    if not js.exists():
+        raise FileNotFoundError(f"checkpoint {pt_path}: its config {js.name} is missing")
+    return json.loads(js.read_text())
+
+
+def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
+    """Rebuild an ERP from a checkpoint -> (model in eval mode, config dict, Normalisation).
+
+    ``expect`` (e.g. {"task": "nav", "modality": "event"}) is checked against the config
+    first; any difference, or weights that do not fit the architecture the config
+    describes, raises ValueError naming the file and the field.
+    """
+    import torch
+
+    from .model import ERP
+    pt_path = Path(pt_path)
+    cfg = read_config(pt_path)
+    for key, want in (expect or {}).items():
+        if cfg.get(key) != want:
+            raise ValueError(f"checkpoint {pt_path}: config has {key}={cfg.get(key)!r}, "
+                             f"expected {want!r}")
+    check_modality(cfg["modality"])
+    if cfg["channels"] != channels(cfg["modality"]):
+        raise ValueError(f"checkpoint {pt_path}: {cfg['channels']} channels do not match "
+                         f"modality {cfg['modality']!r} ({channels(cfg['modality'])})")
+    norm = Normalisation.from_dict(cfg["normalisation"])
+    if norm.size != cfg["size"]:
+        raise ValueError(f"checkpoint {pt_path}: normalisation size {norm.size} != size "
+                         f"{cfg['size']}")
+    model = ERP(cfg["task"], cfg["channels"], cfg["size"])
+    state = torch.load(pt_path, map_location="cpu", weights_only=True)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise ValueError(f"checkpoint {pt_path}: weights do not match the config "
+                         f"(task {cfg['task']}, modality {cfg['modality']}, size {cfg['size']}):"
+                         f" {str(exc).splitlines()[0]} ...") from None
+    model.eval()
+    return model, cfg, norm

@@ -1,0 +1,122 @@
+"""Inference side of the ERP: preloaded variants, and pairing of streams by tick.
+
+``PolicySet`` holds one model per modality (all loaded up front, so a modality swap costs
+no load time) and turns one observation into one action. ``TickSync`` keeps the latest few
+frames of each stream by tick and says which tick is complete for a modality. The policy
+actor (actors/policy.py) only wires these to the runtime.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .checkpoint import checkpoint_paths, load_checkpoint
+from .inputs import MODALITIES, MODALITY_INPUTS, Normalisation, check_modality, model_input
+
+
+@dataclass
+class LoadedPolicy:
+    model: object            # sebvs.policy.model.ERP, eval mode
+    config: dict
+    norm: Normalisation
+    path: str
+
+
+def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
+                        modalities: list[str]) -> dict[str, Path]:
+    """Either an explicit table modality -> .pt path, or a directory + a list of modalities
+    (files ``<task>-<modality>.pt``). Returns modality -> path."""
+    if checkpoints and directory:
+        raise ValueError("give either 'checkpoints' (modality -> path) or 'directory', not both")
+    if checkpoints:
+        table = {m: Path(p) for m, p in checkpoints.items()}
+    elif directory:
+        table = {m: checkpoint_paths(directory, task, m)[0] for m in (modalities or MODALITIES)}
+    else:
+        raise ValueError("no checkpoints: set 'checkpoints' (modality -> path) or 'directory'")
+    for m, p in table.items():
+        check_modality(m)
+        if not p.exists():
+            raise FileNotFoundError(f"checkpoint for modality {m!r} not found: {p}")
+    return table
+
+
+class PolicySet:
+    """The loaded variants of one task. ``act`` -> (action float32 [2] or [6], ms)."""
+
+    def __init__(self, table: dict[str, Path], task: str | None = None):
+        import torch
+        self._torch = torch
+        self.policies: dict[str, LoadedPolicy] = {}
+        for m, path in table.items():
+            expect = {"modality": m, **({"task": task} if task else {})}
+            model, cfg, norm = load_checkpoint(path, expect=expect)
+            self.policies[m] = LoadedPolicy(model, cfg, norm, str(path))
+        tasks = {p.config["task"] for p in self.policies.values()}
+        if len(tasks) != 1:
+            raise ValueError(f"checkpoints mix tasks {sorted(tasks)}: one policy, one task")
+        self.task = tasks.pop()
+        self.output = "action" if self.task == "nav" else "pose"
+
+    @property
+    def modalities(self) -> list[str]:
+        return list(self.policies)
+
+    def warm_up(self) -> None:
+        """One inference per variant on zeros: first calls allocate, keep that off tick 0."""
+        for m, p in self.policies.items():
+            s = p.norm.size
+            self.act(m, rgb=np.zeros((s, s, 3), np.uint8), events=np.zeros((2, s, s), np.uint8))
+
+    def act(self, modality: str, *, rgb: np.ndarray | None = None,
+            events: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+        """Observation -> (output float32 [2] | [6], preprocess ms, inference ms)."""
+        p = self.policies[modality]
+        t0 = time.perf_counter()
+        x = model_input(modality, p.norm, rgb=rgb, events=events)
+        t1 = time.perf_counter()
+        with self._torch.inference_mode():
+            y = p.model(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
+        t2 = time.perf_counter()
+        return y, (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+
+class TickSync:
+    """Latest frames per stream, keyed by tick; finds the next tick complete for a modality.
+
+    Frames are copied in (runtime arrays are only valid during a handler). Ticks at or
+    below the last one used are stale and dropped; at most ``keep`` ticks are held per
+    stream, so a stream that stops cannot grow memory.
+    """
+
+    def __init__(self, streams: tuple[str, ...], keep: int = 8):
+        self.frames: dict[str, dict[int, tuple[np.ndarray, float | None]]] = \
+            {s: {} for s in streams}
+        self.keep = keep
+        self.last_tick: int | None = None
+
+    def put(self, stream: str, tick: int, array: np.ndarray, t_sim: float | None) -> None:
+        if self.last_tick is not None and tick <= self.last_tick:
+            return
+        buf = self.frames[stream]
+        buf[tick] = (np.array(array), t_sim)
+        while len(buf) > self.keep:
+            del buf[min(buf)]
+
+    def ready(self, modality: str) -> int | None:
+        """Smallest tick (after the last used) for which every stream of ``modality`` has a frame."""
+        needed = [self.frames[s] for s in MODALITY_INPUTS[modality]]
+        common = set(needed[0]).intersection(*needed[1:])
+        return min(common) if common else None
+
+    def take(self, modality: str, tick: int) -> dict[str, tuple[np.ndarray, float | None]]:
+        """The frames of ``tick`` for ``modality``; everything up to ``tick`` is then dropped."""
+        got = {s: self.frames[s][tick] for s in MODALITY_INPUTS[modality]}
+        self.last_tick = tick
+        for buf in self.frames.values():
+            for t in [t for t in buf if t <= tick]:
+                del buf[t]
+        return got

@@ -1,0 +1,99 @@
+"""The one place that turns raw observations into model input; training and the actor share it.
+
+    rgb     uint8 [H, W, 3]  -> float32 [3, S, S] in [0, 1]            (x / 255)
+    events  uint8 [2, H, W]  -> float32 [2, S, S] in [0, 1]            (min(n, clip) / clip)
+            channel 0 = ON counts, 1 = OFF counts, since the last accumulator flush
+    model input for a modality = the per-modality tensors concatenated, rgb first:
+            rgb -> 3 ch, event -> 2 ch, rgb+event -> 5 ch
+
+Resizing: when a recorded frame is not S x S it is resized with cv2.INTER_AREA (an area
+average: no aliasing on the way down, and for event counts it keeps the mean density).
+Event counts are clipped *before* resizing so that one hot pixel cannot dominate a patch.
+RGB and event frames may have different sizes (the emulator downsamples); each is
+resized to S on its own.
+
+The settings (``Normalisation``) are stored in each checkpoint's config and read back by
+the actor, so a policy always sees inputs prepared the way it was trained.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import cv2
+import numpy as np
+
+MODALITIES = ("rgb", "event", "rgb+event")
+# which observation streams a modality reads, in channel order
+MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "events")}
+STREAM_CHANNELS = {"rgb": 3, "events": 2}
+
+
+def channels(modality: str) -> int:
+    """Input channels of a modality's model: rgb 3, event 2, rgb+event 5."""
+    check_modality(modality)
+    return sum(STREAM_CHANNELS[s] for s in MODALITY_INPUTS[modality])
+
+
+def check_modality(modality: str) -> None:
+    if modality not in MODALITY_INPUTS:
+        raise ValueError(f"unknown modality {modality!r} (one of {', '.join(MODALITIES)})")
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """How raw frames become model input; recorded in the checkpoint config."""
+    size: int = 160                 # model input side S
+    rgb_scale: float = 1.0 / 255.0  # rgb uint8 -> [0, 1]
+    event_clip: int = 8             # event counts above this saturate
+    resize: str = "INTER_AREA"
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Normalisation":
+        return cls(**{k: d[k] for k in ("size", "rgb_scale", "event_clip", "resize") if k in d})
+
+
+def _resize(img: np.ndarray, size: int) -> np.ndarray:
+    """[H, W] or [H, W, C] -> [size, size(, C)] by area averaging (no-op if already S x S)."""
+    if img.shape[0] == size and img.shape[1] == size:
+        return img
+    return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def rgb_input(rgb: np.ndarray, norm: Normalisation) -> np.ndarray:
+    """RGB uint8 [H, W, 3] -> float32 [3, S, S] in [0, 1]."""
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
+    img = _resize(np.ascontiguousarray(rgb), norm.size).astype(np.float32)
+    img *= norm.rgb_scale
+    return np.ascontiguousarray(img.transpose(2, 0, 1))
+
+
+def event_input(events: np.ndarray, norm: Normalisation) -> np.ndarray:
+    """Event counts uint8 [2, H, W] (ON, OFF) -> float32 [2, S, S] in [0, 1]."""
+    if events.ndim != 3 or events.shape[0] != 2:
+        raise ValueError(f"events must be [2, H, W] (ON, OFF counts), got {list(events.shape)}")
+    clipped = np.minimum(events, norm.event_clip).astype(np.float32)
+    clipped *= 1.0 / norm.event_clip
+    # cv2 wants channels last; area-resize both polarities in one call
+    hw2 = _resize(np.ascontiguousarray(clipped.transpose(1, 2, 0)), norm.size)
+    return np.ascontiguousarray(hw2.transpose(2, 0, 1))
+
+
+def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,
+                events: np.ndarray | None = None) -> np.ndarray:
+    """The observation a modality needs -> float32 [C, S, S] (rgb channels first)."""
+    check_modality(modality)
+    parts = []
+    for stream in MODALITY_INPUTS[modality]:
+        if stream == "rgb":
+            if rgb is None:
+                raise ValueError(f"modality {modality!r} needs an rgb frame")
+            parts.append(rgb_input(rgb, norm))
+        else:
+            if events is None:
+                raise ValueError(f"modality {modality!r} needs an event frame")
+            parts.append(event_input(events, norm))
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)

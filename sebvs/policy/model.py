@@ -1,0 +1,146 @@
+"""The ERP transformer (paper section 3.4): early-fused RGB + event frames -> an action.
+
+    x [B, C, S, S]  (C = 3 rgb | 2 event | 5 rgb+event, already normalised by inputs.py)
+      -> PatchEmbedding     tokens [B, N, 64]    N = (S/16)^2: 100 at 160 px, 1600 at 640 px
+      -> prepend class token, add fixed 2-D sinusoidal positions       [B, 1+N, 64]
+      -> one post-norm encoder layer (4-head self-attention, 256-unit MLP, dropout 0.1)
+      -> task head on the class token: nav [v, w] in [-1, 1], arm 6-DoF pose
+
+The three variants differ only in the patch embedding's input channels, so a variant is
+chosen by ``in_channels`` alone. Every other size is a constructor argument with the
+paper's value as default.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+TASK_OUTPUTS = {"nav": 2, "arm": 6}
+
+
+def sinusoidal_positions_2d(rows: int, cols: int, dim: int) -> torch.Tensor:
+    """Fixed 2-D sinusoidal encoding, [rows*cols, dim], row-major like the patch order.
+
+    Half of the channels encode the patch row, half the column, each with the usual
+    1-D sin/cos ladder (Vaswani et al.) over dim/4 frequencies: a 2-D grid keeps the
+    vertical neighbourhood that a flattened 1-D index would scatter.
+    """
+    if dim % 4:
+        raise ValueError(f"embedding dim {dim} must be divisible by 4 for 2-D positions")
+    quarter = dim // 4
+    freq = torch.exp(-math.log(10000.0) * torch.arange(quarter, dtype=torch.float64) / quarter)
+
+    def ladder(n: int) -> torch.Tensor:                       # [n, dim/2]
+        angle = torch.arange(n, dtype=torch.float64)[:, None] * freq[None, :]
+        return torch.cat([angle.sin(), angle.cos()], dim=1)
+
+    r, c = ladder(rows), ladder(cols)
+    grid = torch.cat([r[:, None, :].expand(rows, cols, dim // 2),
+                      c[None, :, :].expand(rows, cols, dim // 2)], dim=2)
+    return grid.reshape(rows * cols, dim).float()
+
+
+class PatchEmbedding(nn.Module):
+    """Non-overlapping patches -> tokens: [B, C, S, S] -> [B, (S/p)^2, dim].
+
+    A Conv2d with kernel = stride = patch is exactly "flatten each patch and project it".
+    """
+
+    def __init__(self, in_channels: int, dim: int = 64, patch: int = 16):
+        super().__init__()
+        self.patch = patch
+        self.proj = nn.Conv2d(in_channels, dim, kernel_size=patch, stride=patch)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.proj(x).flatten(2).transpose(1, 2)
+
+
+class TokenSequence(nn.Module):
+    """Prepends the learnable class token and adds fixed positions: [B, N, D] -> [B, 1+N, D].
+
+    The positional table is a non-persistent buffer built for the model's grid: it is not
+    in the state_dict (it is a function of the size in the config, not a weight). The class
+    token gets no positional term, as in ViT.
+    """
+
+    def __init__(self, grid: int, dim: int = 64):
+        super().__init__()
+        self.cls = nn.Parameter(torch.zeros(1, 1, dim))
+        nn.init.trunc_normal_(self.cls, std=0.02)
+        self.register_buffer("pos", sinusoidal_positions_2d(grid, grid, dim)[None],
+                             persistent=False)
+
+    def forward(self, tokens: torch.Tensor) -> torch.Tensor:
+        cls = self.cls.expand(tokens.shape[0], -1, -1)
+        return torch.cat([cls, tokens + self.pos], dim=1)
+
+
+class NavHead(nn.Module):
+    """PolicyHeadNav: class token [B, D] -> [v, w] [B, 2], squashed to [-1, 1] by tanh."""
+
+    def __init__(self, dim: int = 64, hidden: int = 64):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(),
+                                 nn.Linear(hidden, TASK_OUTPUTS["nav"]))
+
+    def forward(self, cls: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.mlp(cls))
+
+
+class ArmHead(nn.Module):
+    """PolicyHeadArm: class token [B, D] -> pose [x, y, z, roll, pitch, yaw] [B, 6].
+
+    Deeper than the nav head (two hidden layers) and unbounded: positions are metres and
+    angles radians, in the dataset's own units.
+    """
+
+    def __init__(self, dim: int = 64, hidden: int = 128):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(),
+                                 nn.Linear(hidden, hidden // 2), nn.GELU(),
+                                 nn.Linear(hidden // 2, TASK_OUTPUTS["arm"]))
+
+    def forward(self, cls: torch.Tensor) -> torch.Tensor:
+        return self.mlp(cls)
+
+
+class ERP(nn.Module):
+    """Event-based robot policy: [B, in_channels, size, size] float -> [B, 2] (nav) or [B, 6] (arm).
+
+    Args:
+        task: "nav" or "arm" (selects the head).
+        in_channels: 3 (rgb), 2 (event) or 5 (rgb+event); rgb channels come first.
+        size: input side in pixels, a multiple of ``patch`` (160 -> 100 tokens, 640 -> 1600).
+        dim, heads, mlp, dropout, patch: the paper's 64, 4, 256, 0.1, 16.
+    """
+
+    def __init__(self, task: str, in_channels: int, size: int = 160, *, dim: int = 64,
+                 heads: int = 4, mlp: int = 256, dropout: float = 0.1, patch: int = 16):
+        super().__init__()
+        if task not in TASK_OUTPUTS:
+            raise ValueError(f"unknown task {task!r} (nav, arm)")
+        if size % patch:
+            raise ValueError(f"size {size} is not a multiple of the patch size {patch}")
+        self.task, self.in_channels, self.size = task, in_channels, size
+        self.embed = PatchEmbedding(in_channels, dim, patch)
+        self.tokens = TokenSequence(size // patch, dim)
+        # Post-norm ("layer normalization ... applied after each sub-layer", section 3.4).
+        # nn.TransformerEncoderLayer also gives the fused CPU inference fast path in eval().
+        self.encoder = nn.TransformerEncoderLayer(dim, heads, dim_feedforward=mlp,
+                                                  dropout=dropout, activation="gelu",
+                                                  batch_first=True, norm_first=False)
+        self.head = NavHead(dim) if task == "nav" else ArmHead(dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]."""
+        if x.shape[1:] != (self.in_channels, self.size, self.size):
+            raise ValueError(f"expected input [B, {self.in_channels}, {self.size}, {self.size}], "
+                             f"got {list(x.shape)}")
+        h = self.encoder(self.tokens(self.embed(x)))
+        return self.head(h[:, 0])
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,239 @@
+"""Behaviour cloning of the ERP variants (paper section 4.2), seeded and reproducible on CPU.
+
+    nav: Adam lr 2e-4, weight decay 1e-4, MSE, 10 epochs, batch 32, early stopping patience 2
+    arm: Adam lr 1e-4, ReduceLROnPlateau(factor 0.5, patience 2, threshold 1e-4 absolute),
+         Smooth L1, 10 epochs, batch 32, early stopping (patience 4 here: with 2, training
+         would stop before the scheduler's first halving could ever act)
+
+The split is by episode. The weights of the best validation epoch are saved.
+Outputs in ``out``: ``<task>-<modality>.pt`` + ``.json`` per variant,
+``<task>-<modality>-losses.csv`` per variant and ``<task>-losses.png`` with every variant
+trained into that directory on one plot (the paper's Fig. 6).
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from .checkpoint import model_config, save_checkpoint
+from .dataset import EpisodeFrames, dataset_hash, load_index, split_episodes
+from .inputs import MODALITIES, Normalisation, channels, check_modality
+
+
+@dataclass
+class TrainSettings:
+    task: str
+    lr: float
+    weight_decay: float
+    loss: str                     # "mse" | "smooth_l1"
+    epochs: int = 10
+    batch: int = 32
+    patience: int = 2             # early stopping, epochs without a better validation loss
+    plateau: dict | None = None   # ReduceLROnPlateau arguments, or None
+    val_fraction: float = 0.2
+    seed: int = 0
+    max_frames: int = 0
+    num_workers: int = 0
+    threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
+    norm: Normalisation = field(default_factory=Normalisation)
+
+
+def paper_settings(task: str) -> TrainSettings:
+    if task == "nav":
+        return TrainSettings("nav", lr=2e-4, weight_decay=1e-4, loss="mse")
+    if task == "arm":
+        return TrainSettings("arm", lr=1e-4, weight_decay=0.0, loss="smooth_l1", patience=4,
+                             plateau={"factor": 0.5, "patience": 2, "threshold": 1e-4,
+                                      "threshold_mode": "abs"})
+    raise ValueError(f"unknown task {task!r} (nav, arm)")
+
+
+def _seed_everything(seed: int) -> None:
+    import random
+
+    import numpy as np
+    import torch
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _collate(batch):
+    import numpy as np
+    import torch
+    xs, ys = zip(*batch)
+    return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
+
+
+def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True):
+    """One pass; trains if an optimizer is given. Returns the mean loss per sample."""
+    import torch
+    from tqdm import tqdm
+    training = optimizer is not None
+    model.train(training)
+    total, n = 0.0, 0
+    bar = tqdm(loader, desc=desc, unit="batch", leave=False, disable=not progress,
+               dynamic_ncols=True)
+    with torch.set_grad_enabled(training):
+        for x, y in bar:
+            loss = criterion(model(x), y)
+            if training:
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+            total += loss.item() * len(x)
+            n += len(x)
+            bar.set_postfix(loss=f"{total / n:.4g}")
+    bar.close()
+    return total / max(n, 1)
+
+
+def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSettings,
+                  progress: bool = True, log=print) -> dict:
+    """Train one modality; writes its checkpoint, config and loss CSV. Returns the config."""
+    import numpy as np
+    import torch
+    from torch.utils.data import DataLoader
+
+    from .model import ERP, count_parameters
+    check_modality(modality)
+    data, out = Path(data), Path(out)
+    episodes = load_index(data)
+    train_eps, val_eps = split_episodes(episodes, s.val_fraction, s.seed)
+    train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
+    val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
+    val_set = EpisodeFrames(data, val_eps, s.task, modality, s.norm, val_cap)
+
+    prev_threads = torch.get_num_threads()
+    prev_det = torch.are_deterministic_algorithms_enabled()
+    if s.threads:
+        torch.set_num_threads(s.threads)
+    torch.use_deterministic_algorithms(True)
+    try:
+        _seed_everything(s.seed)
+        model = ERP(s.task, channels(modality), s.norm.size)
+        gen = torch.Generator().manual_seed(s.seed)
+        train_loader = DataLoader(train_set, batch_size=s.batch, shuffle=True, generator=gen,
+                                  num_workers=s.num_workers, collate_fn=_collate,
+                                  persistent_workers=s.num_workers > 0)
+        val_loader = DataLoader(val_set, batch_size=s.batch, shuffle=False,
+                                num_workers=s.num_workers, collate_fn=_collate)
+        optimizer = torch.optim.Adam(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+        scheduler = (torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, mode="min",
+                                                                **s.plateau)
+                     if s.plateau else None)
+        criterion = torch.nn.MSELoss() if s.loss == "mse" else torch.nn.SmoothL1Loss()
+        log(f"train {s.task}-{modality}: {count_parameters(model)} parameters, "
+            f"{len(train_set)} train frames ({len(train_eps)} episodes), "
+            f"{len(val_set)} validation frames ({len(val_eps)} episodes), size {s.norm.size}")
+
+        rows, best, best_state, bad = [], math.inf, None, 0
+        t0 = time.monotonic()
+        for epoch in range(1, s.epochs + 1):
+            tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
+            lr = optimizer.param_groups[0]["lr"]
+            tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress)
+            va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress)
+            rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
+                         "val_loss": va, "lr": lr})
+            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}")
+            if va < best:
+                best, bad = va, 0
+                best_state = copy.deepcopy(model.state_dict())
+            else:
+                bad += 1
+            if scheduler is not None:
+                scheduler.step(va)
+            if bad >= s.patience:
+                log(f"  early stop: no better validation loss for {bad} epochs")
+                break
+        if best_state is not None:     # else every validation loss was NaN: keep the last
+            model.load_state_dict(best_state)
+    finally:
+        torch.use_deterministic_algorithms(prev_det)
+        torch.set_num_threads(prev_threads)
+        train_set.close()
+        val_set.close()
+
+    config = {**model_config(s.task, modality, s.norm),
+              "parameters": count_parameters(model),
+              "dataset": {"path": str(data), "hash": dataset_hash(data, episodes),
+                          "train_episodes": [e["file"] for e in train_eps],
+                          "val_episodes": [e["file"] for e in val_eps],
+                          "train_frames": len(train_set), "val_frames": len(val_set)},
+              "training": {"lr": s.lr, "weight_decay": s.weight_decay, "loss": s.loss,
+                           "batch": s.batch, "epochs": s.epochs, "epochs_run": len(rows),
+                           "patience": s.patience, "plateau": s.plateau,
+                           "best_val_loss": best, "seed": s.seed, "max_frames": s.max_frames,
+                           "seconds": round(time.monotonic() - t0, 2)},
+              "torch": torch.__version__, "numpy": np.__version__}
+    save_checkpoint(model, config, out)
+    write_losses_csv(rows, out / f"{s.task}-{modality}-losses.csv")
+    return config
+
+
+def write_losses_csv(rows: list[dict], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["modality", "epoch", "train_loss", "val_loss", "lr"])
+        w.writeheader()
+        w.writerows(rows)
+
+
+def plot_losses(out: str | Path, task: str) -> Path | None:
+    """Fig. 6: train (solid) and validation (dashed) loss per epoch, one colour per variant,
+    from every ``<task>-*-losses.csv`` in ``out``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out = Path(out)
+    curves = {}
+    for m in MODALITIES:
+        p = out / f"{task}-{m}-losses.csv"
+        if p.exists():
+            with open(p) as f:
+                curves[m] = list(csv.DictReader(f))
+    if not curves:
+        return None
+    colours = {"rgb": "tab:blue", "event": "tab:orange", "rgb+event": "tab:green"}
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for m, rows in curves.items():
+        ep = [int(r["epoch"]) for r in rows]
+        ax.plot(ep, [float(r["train_loss"]) for r in rows], "-", color=colours[m],
+                label=f"{m} train")
+        ax.plot(ep, [float(r["val_loss"]) for r in rows], "--", color=colours[m],
+                label=f"{m} val")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("MSE" if task == "nav" else "Smooth L1")
+    ax.set_yscale("log")
+    ax.set_title(f"ERP{task.capitalize()}: training and validation loss")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = out / f"{task}-losses.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def train(data: str | Path, out: str | Path, task: str, modalities: list[str],
+          progress: bool = True, log=print, **overrides) -> dict[str, dict]:
+    """Train each modality in turn with the paper's settings for ``task`` (``overrides``
+    replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64))."""
+    s = replace(paper_settings(task), **{k: v for k, v in overrides.items() if v is not None})
+    results = {}
+    for m in modalities:
+        results[m] = train_variant(data, out, m, s, progress=progress, log=log)
+    png = plot_losses(out, task)
+    summary = {m: {"best_val_loss": c["training"]["best_val_loss"],
+                   "epochs_run": c["training"]["epochs_run"],
+                   "parameters": c["parameters"]} for m, c in results.items()}
+    log(json.dumps(summary, indent=2))
+    if png:
+        log(f"loss curves: {png}")
+    return results

@@ -1,0 +1,87 @@
+"""Tiny synthetic behaviour-cloning datasets for the policy tests, in the recorded layout.
+
+Each frame shows a bright square on a dim noisy background; the square drifts. The
+expert's action is a function of what the image shows, so a policy can learn it:
+    w = (x_centre / W) * 2 - 1,   v = (y_centre / H) * 2 - 1        (nav, both in [-1, 1])
+    pose = [x, y, 0.1, 0, 0, y - x] in normalised image units       (arm)
+or, with target="gain", from the square's brightness (see make_dataset).
+Event frames: ON counts where the square is now and was not, OFF where it was and is not,
+so an event-only policy can localise the square too.
+Written with h5py in the documented layout (sebvs/data's EpisodeWriter was not there yet).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+
+def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int):
+    """-> rgb [T, H, W, 3], events [T, 2, H, W], centre [T, 2] in [0, 1], gain [T] in [0.2, 1]."""
+    x, y = rng.uniform(0, w - side), rng.uniform(0, h - side)
+    vx, vy = rng.uniform(-2, 2, 2) * max(1, w // 32)
+    rgb = np.empty((frames, h, w, 3), np.uint8)
+    events = np.zeros((frames, 2, h, w), np.uint8)
+    centre = np.empty((frames, 2), np.float32)
+    prev = None
+    gain = rng.uniform(0.2, 1.0, frames).astype(np.float32)
+    for t in range(frames):
+        x, y = x + vx, y + vy
+        if not 0 <= x <= w - side:
+            vx, x = -vx, float(np.clip(x, 0, w - side))
+        if not 0 <= y <= h - side:
+            vy, y = -vy, float(np.clip(y, 0, h - side))
+        mask = np.zeros((h, w), bool)
+        mask[int(y):int(y) + side, int(x):int(x) + side] = True
+        # the background's level follows the gain too: a global cue, quick to learn
+        rgb[t] = rng.integers(0, 40, (h, w, 3), dtype=np.uint8) + np.uint8(100 * gain[t])
+        rgb[t][mask] = (np.array([250, 240, 80]) * gain[t]).astype(np.uint8)
+        n = int(round(1 + 7 * gain[t]))     # a brighter square fires more events
+        if prev is not None:
+            events[t, 0][mask & ~prev] = n
+            events[t, 1][prev & ~mask] = n
+        events[t, 0][mask] = np.maximum(events[t, 0][mask], n)
+        prev = mask
+        centre[t] = ((x + side / 2) / w, (y + side / 2) / h)
+    return rgb, events, centre, gain
+
+
+def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, height: int = 32,
+                 width: int = 32, seed: int = 0, task: str = "nav",
+                 target: str = "position") -> Path:
+    """Write ``episodes`` episode files and index.json under ``root``.
+
+    target "position": nav [v, w] from the square's centre (a ViT learns this only after a
+    plateau of several hundred steps: attention must first find the square);
+    "gain": v = w = the square's brightness mapped to [-1, 1], visible in the mean of every
+    channel, so a few epochs show the loss falling.
+    """
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    index = []
+    for e in range(episodes):
+        rgb, events, centre, gain = _frames(rng, frames, height, width, max(4, width // 5))
+        name = f"episode_{e:04d}.h5"
+        with h5py.File(root / name, "w") as f:
+            f.create_dataset("rgb", data=rgb, chunks=(1, height, width, 3))
+            f.create_dataset("events/frame", data=events, chunks=(1, 2, height, width))
+            if task == "nav":
+                if target == "gain":
+                    action = np.stack([gain * 2 - 1.2, gain * 2 - 1.2], axis=1)
+                else:
+                    action = np.stack([centre[:, 1] * 2 - 1, centre[:, 0] * 2 - 1], axis=1)
+                f.create_dataset("action", data=action.astype(np.float32))
+            else:
+                cx, cy = centre[:, 0], centre[:, 1]
+                z = np.full_like(cx, 0.1)
+                pose = np.stack([cx, cy, z, 0 * cx, 0 * cx, cy - cx], axis=1)
+                f.create_dataset("pose", data=pose.astype(np.float32))
+            f.create_dataset("t_sim", data=np.arange(frames) / 30.0)
+            f.create_dataset("tick", data=np.arange(frames, dtype=np.int64))
+            f.attrs.update(task=task, seed=seed * 1000 + e)
+        index.append({"file": name, "frames": frames, "seed": seed * 1000 + e})
+    (root / "index.json").write_text(json.dumps({"task": task, "episodes": index}, indent=2))
+    return root
