@@ -32,7 +32,7 @@ class FrameRenderer:
     Use as a context manager (or call close()): it owns a GL context.
         with FrameRenderer(model, 160, 160) as r:
             r.update(data, "front")
-            r.rgb(out_rgb); r.luma(out_luma)   # one render serves both
+            r.rgb(out_rgb); r.luma(out_luma, src=out_rgb)   # one render serves both
     """
 
     def __init__(self, model: mujoco.MjModel, height: int, width: int) -> None:
@@ -42,7 +42,6 @@ class FrameRenderer:
         self._scratch = np.empty((self.height, self.width, 3), np.uint8)
         self._acc: np.ndarray | None = None
         self._mode = "rgb"
-        self._fresh = False     # scene updated since the last RGB render
 
     # -- lifecycle ------------------------------------------------------------------
     def close(self) -> None:
@@ -72,7 +71,6 @@ class FrameRenderer:
     def update(self, data: mujoco.MjData, camera: str | int) -> None:
         """Pose the scene from `data` (its kinematics must be current) for `camera`."""
         self._r.update_scene(data, camera=camera)
-        self._fresh = True
 
     def rgb(self, out: np.ndarray | None = None) -> np.ndarray:
         """Render RGB into `out` ((H, W, 3) uint8, C-contiguous) or a new array."""
@@ -80,17 +78,16 @@ class FrameRenderer:
         if out is None:
             out = np.empty((self.height, self.width, 3), np.uint8)
         self._r.render(out=out)
-        self._last_rgb = out
-        self._fresh = False
         return out
 
-    def luma(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Luma (H, W) uint8. Reuses the RGB render of this scene update if there was one
-        (MuJoCo renders colour anyway; a gray conversion of 160x160 costs ~20 us)."""
+    def luma(self, out: np.ndarray | None = None, src: np.ndarray | None = None) -> np.ndarray:
+        """Luma (H, W) uint8 of `src` (an RGB render of the current pose, when the caller
+        has one: MuJoCo renders colour anyway, and the conversion of 160x160 costs ~20 us),
+        else of a fresh render."""
         if out is None:
             out = np.empty((self.height, self.width), np.uint8)
-        src = self._last_rgb if not self._fresh and getattr(self, "_last_rgb", None) is not None \
-            else self.rgb(self._scratch)
+        if src is None:
+            src = self.rgb(self._scratch)
         cv2.cvtColor(src, cv2.COLOR_RGB2GRAY, dst=out)
         return out
 
@@ -130,6 +127,4 @@ class FrameRenderer:
             n += 1
         np.floor_divide(self._acc + n // 2, max(n, 1), out=self._acc)
         out[...] = self._acc
-        self._fresh = True      # scratch no longer holds the last pose alone
-        self._last_rgb = None
         return out

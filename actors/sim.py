@@ -1,0 +1,245 @@
+"""The sim actor: MuJoCo physics of one scene, and the topology's clock.
+
+Input  `action`   msg.arrays["action"]: (command_dim,) float command for tick msg.tick.
+Output `state`    scene.state() arrays (qpos, mocap_pos, mocap_quat, ...), published at
+                  render_hz and at every control tick. meta: episode (int), control (bool:
+                  True on the sample of a control tick), t_ep (s since the episode start),
+                  truth (scene.truth(), control samples only), and on the episode's first
+                  sample scene + config (the camera compiles its own model from them: the
+                  sim's params are the one source of the scene config). tick = the current
+                  control tick (global, counts across episodes); t_sim = simulated seconds
+                  since the run started (monotonic across episodes).
+Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps}.
+
+Clock (DESIGN.md section 3):
+  lockstep  after publishing control tick k the sim waits for the action with tick >= k
+            before it steps on (bit-for-bit reproducible from the seed). If `action` is not
+            wired (camera-only topologies) it free-runs, as fast as it can or capped at
+            max_speed_factor x real time (set it when consumers cannot keep up: a PUB
+            socket drops at its high-water mark, it does not block).
+  realtime  wall-clock pace x realtime_factor; the latest valid action applies on arrival.
+
+A command with NaN/inf (or the wrong shape) is rejected: error in the log, telemetry
+"command_rejected", the last good command stays. Divergence (sebvs.sim.stability) ends the
+episode with its reason before the bad state is published: NaN never leaves this actor.
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Optional
+
+import numpy as np
+
+from sebvs.runtime import Actor, Message
+from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
+from sebvs.sim.stability import StabilityMonitor
+
+import mujoco  # noqa: E402  (after sebvs.sim on purpose)
+
+
+def episode_seed(seed: int, episode: int) -> int:
+    """The seed of episode `episode` of a run seeded `seed` (stable, reportable)."""
+    return int(np.random.SeedSequence([seed, episode]).generate_state(1)[0])
+
+
+class Sim(Actor):
+    inputs = ("action",)
+    outputs = ("state", "episode")
+
+    @dataclass
+    class Params:
+        scene: Literal["nav", "arm"] = "nav"
+        config: dict = field(default_factory=dict)   # scene config: variant, conditions...
+        integrator: Literal["euler", "implicitfast", "implicit", "rk4", "discrete"] = \
+            "implicitfast"
+        physics_hz: float = 500.0
+        timestep: Optional[float] = None     # s; overrides physics_hz when set
+        control_hz: float = 20.0
+        render_hz: float = 200.0             # state rate: max of the camera's rgb_hz, dvs_hz
+        episode_s: float = 20.0
+        episodes: int = 1                    # 0: until stopped
+        realtime_factor: float = 1.0         # realtime clock: sim seconds per wall second
+        max_speed_factor: float = 0.0        # lockstep without action: 0 = unpaced
+        action_timeout_s: float = 10.0       # lockstep: give up waiting, keep last command
+        check_every: int = 1                 # stability check period, physics steps
+
+    # ------------------------------------------------------------------ setup
+    async def setup(self) -> None:
+        p = self.params
+        physics_hz = 1.0 / p.timestep if p.timestep else p.physics_hz
+        for key, v in (("physics_hz", physics_hz), ("control_hz", p.control_hz),
+                       ("render_hz", p.render_hz), ("episode_s", p.episode_s),
+                       ("realtime_factor", p.realtime_factor)):
+            if not v > 0:
+                raise ValueError(f"sim: {key} must be positive, got {v!r}")
+        self.dt = 1.0 / physics_hz
+        self.steps_per_control = max(1, round(physics_hz / p.control_hz))
+        self.steps_per_render = max(1, round(physics_hz / p.render_hz))
+        if self.steps_per_control % self.steps_per_render:
+            raise ValueError(
+                f"sim: control period ({self.steps_per_control} steps) must be a multiple of "
+                f"the render period ({self.steps_per_render} steps at physics_hz "
+                f"{physics_hz:g}): choose render_hz = n * control_hz")
+        self.config = {**p.config, "integrator": p.integrator, "timestep": self.dt}
+        self.scene = make_scene(p.scene, **self.config)
+        self.model = self.scene.compile()
+        self.data = mujoco.MjData(self.model)
+        self.monitor = StabilityMonitor(self.model, self.scene.limits())
+        self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
+        self.command = np.zeros(self.scene.command_dim)     # last good command
+        self.pending: tuple[int, np.ndarray] | None = None  # lockstep: newest valid action
+        self.action_tick = -1
+        self.action_event = asyncio.Event()
+        self.tick = -1
+        self.t_offset = 0.0                 # t_sim at the current episode's start
+        self.counts = {"steps": 0, "episodes": 0, "rejected": 0, "action_timeouts": 0,
+                       "stale_actions": 0, "diverged": 0}
+        self.log.info("sim: scene %s %s, integrator %s, dt %g s, %d steps/control, "
+                      "%d steps/state, lockstep wait %s", p.scene, p.config, p.integrator,
+                      self.dt, self.steps_per_control, self.steps_per_render,
+                      self.lockstep_wait)
+
+    # ------------------------------------------------------------------ actions
+    async def on_action(self, msg: Message) -> None:
+        cmd = msg.arrays.get("action")
+        tick = msg.tick if msg.tick is not None else self.tick
+        if self.lockstep_wait and tick < self.tick:
+            self.counts["stale_actions"] += 1       # answer to a tick already stepped past
+            return
+        ok = cmd is not None and cmd.shape == (self.scene.command_dim,) and \
+            bool(np.isfinite(cmd).all())
+        if not ok:
+            self._reject(cmd, tick, "missing, wrong shape or not finite")
+        elif self.lockstep_wait:
+            self.pending = (tick, np.array(cmd, dtype=np.float64))
+        else:
+            self._apply(np.array(cmd, dtype=np.float64), tick)
+        if tick > self.action_tick:
+            self.action_tick = tick                 # a rejected command still answers the tick
+            self.action_event.set()
+
+    def _reject(self, cmd, tick: int, why: str) -> None:
+        self.counts["rejected"] += 1
+        shown = None if cmd is None else np.asarray(cmd).tolist()
+        self.log.error("command rejected at tick %d (%s): %r; keeping %s", tick, why, shown,
+                       self.command.tolist())
+        self.telemetry("command_rejected", tick=tick, reason=why, command=repr(shown))
+
+    def _apply(self, cmd: np.ndarray, tick: int) -> None:
+        saved = self.data.ctrl.copy()
+        try:
+            self.scene.apply_command(self.model, self.data, cmd)
+        except ValueError as exc:
+            self.data.ctrl[:] = saved               # a scene must not half-apply a command
+            self._reject(cmd, tick, str(exc))
+            return
+        self.command = cmd
+
+    async def _await_action(self, tick: int) -> None:
+        """Lockstep: block until the action for `tick` (or a later one) has arrived."""
+        if not self.lockstep_wait:
+            return
+        deadline = time.monotonic() + self.params.action_timeout_s
+        while self.action_tick < tick and not self.stopping.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.counts["action_timeouts"] += 1
+                self.log.warning("no action for tick %d within %.1f s; keeping %s", tick,
+                                 self.params.action_timeout_s, self.command.tolist())
+                self.telemetry("action_timeout", tick=tick)
+                return
+            self.action_event.clear()
+            try:    # short waits, so a stop is seen promptly
+                await asyncio.wait_for(self.action_event.wait(), min(left, 0.2))
+            except asyncio.TimeoutError:
+                pass
+        if self.pending is not None and self.pending[0] >= tick:
+            self._apply(self.pending[1], self.pending[0])
+        self.pending = None
+
+    # ------------------------------------------------------------------ loop
+    async def run(self) -> None:
+        p = self.params
+        k = 0
+        while not self.stopping.is_set() and (p.episodes <= 0 or k < p.episodes):
+            await self._episode(k)
+            k += 1
+        if not self.stopping.is_set():
+            self.request_stop(f"{k} episode(s) done")
+
+    def _pace_factor(self) -> float:
+        if self.clock == "realtime":
+            return self.params.realtime_factor
+        if not self.lockstep_wait and self.params.max_speed_factor > 0:
+            return self.params.max_speed_factor
+        return 0.0
+
+    async def _episode(self, k: int) -> None:
+        p, model, data, scene = self.params, self.model, self.data, self.scene
+        seed = episode_seed(self.seed, k)
+        scene.reset(model, data, np.random.default_rng(seed))
+        self.monitor.reset(data)
+        self.command = np.zeros(scene.command_dim)
+        self.pending = None
+        scene.apply_command(model, data, self.command)
+        info = {"episode": k, "seed": seed, "scene": p.scene, "config": self.config}
+        await self.emit("episode", meta={"event": "start", "reason": "", **info},
+                        t_sim=self.t_offset, tick=self.tick + 1)
+        n_steps = max(1, round(p.episode_s / self.dt))
+        pace = self._pace_factor()
+        wall0 = time.monotonic_ns()
+        step, reason = 0, "time_limit"
+        while True:
+            if step % self.steps_per_render == 0:
+                control = step % self.steps_per_control == 0
+                if control:
+                    self.tick += 1
+                meta = {"episode": k, "control": control, "t_ep": data.time}
+                if control:
+                    meta["truth"] = scene.truth(model, data)
+                if step == 0:
+                    meta["scene"], meta["config"] = p.scene, self.config
+                await self.emit("state", scene.state(data), meta=meta,
+                                t_sim=self.t_offset + data.time, tick=self.tick)
+                if control and step < n_steps:
+                    await self._await_action(self.tick)
+                if pace > 0:
+                    if not await self.sleep_until(wall0 + int(data.time / pace * 1e9)):
+                        reason = "stopped"
+                        break
+                elif not self.lockstep_wait:
+                    await asyncio.sleep(0)      # let control and stop through
+            if self.stopping.is_set():
+                reason = "stopped"
+                break
+            if step >= n_steps:
+                break
+            why = scene.done(model, data)
+            if why:
+                reason = why
+                break
+            scene.scripted(model, data)
+            mujoco.mj_step(model, data)
+            step += 1
+            if step % p.check_every == 0:
+                why = self.monitor.check(model, data)
+                if why:
+                    reason = why
+                    self.counts["diverged"] += 1
+                    self.log.warning("episode %d: %s", k, why)
+                    break
+        self.counts["steps"] += step
+        self.counts["episodes"] += 1
+        t_ep = float(data.time) if math.isfinite(data.time) else step * self.dt
+        await self.emit("episode", meta={"event": "end", "reason": reason, "steps": step,
+                                         "t_ep": t_ep, **info},
+                        t_sim=self.t_offset + t_ep, tick=self.tick)
+        self.telemetry("episode_end", episode=k, seed=seed, reason=reason, steps=step)
+        self.log.info("episode %d (seed %d) ended: %s after %d steps", k, seed, reason, step)
+        self.t_offset += t_ep
+
+    def stats(self) -> dict:
+        return {**self.counts, "tick": self.tick, "command": self.command.tolist()}
