@@ -1,0 +1,119 @@
+"""The policy actor in a real run: actions per tick, live modality swaps, refusals."""
+import json
+import time
+
+import pytest
+import torch
+import zmq
+
+from sebvs.policy.checkpoint import model_config, save_checkpoint
+from sebvs.policy.inputs import Normalisation, channels
+from sebvs.policy.model import ERP
+from sebvs.runtime.supervisor import Supervisor, control_request
+from sebvs.runtime.topology import load_topology
+
+
+@pytest.fixture(scope="module")
+def ckpts(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ckpt")
+    torch.manual_seed(0)
+    for m in ("rgb", "event", "rgb+event"):
+        save_checkpoint(ERP("nav", channels(m), 32), model_config("nav", m, Normalisation(32)), d)
+    return d
+
+
+def topology(tmp_path, ckpts, *, events=True, modality="rgb+event", only=None):
+    wired = '{ rgb = "source/rgb", events = "source/events" }' if events else \
+        '{ rgb = "source/rgb" }'
+    source = f'directory = "{ckpts}"' if only is None else \
+        "checkpoints = { " + ", ".join(f'"{m}" = "{ckpts}/nav-{m}.pt"' for m in only) + " }"
+    path = tmp_path / "policy.toml"
+    path.write_text(f"""
+[topology]
+name = "policy-test"
+[actors.source]
+run = "tests.policy_actors:TickSource"
+rate_hz = 40.0
+[actors.policy]
+run = "actors.policy:Policy"
+inputs = {wired}
+{source}
+modality = "{modality}"
+[actors.probe]
+run = "actors.synthetic:Probe"
+inputs = {{ action = "policy/action" }}
+path = "{tmp_path / 'probe'}"
+max_arrays = 5
+""")
+    return path
+
+
+def ctl(sup, actor, **req):
+    reply = control_request(zmq.Context.instance(), sup.specs[actor]["control"], req, 5.0)
+    assert reply is not None, f"{actor} did not answer {req}"
+    return reply
+
+
+def wait_emitted(sup, n, timeout=15.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        st = ctl(sup, "policy", cmd="stats")["result"]["actor_stats"]
+        if st["emitted"] >= n:
+            return st
+        time.sleep(0.05)
+    raise AssertionError(f"policy emitted {st['emitted']} < {n} actions")
+
+
+def test_swap_takes_effect_at_next_tick_without_dropping_one(tmp_path, ckpts):
+    sup = Supervisor(load_topology(topology(tmp_path, ckpts)), runs_dir=tmp_path,
+                     echo=lambda s: None)
+    sup.start()
+    try:
+        st = wait_emitted(sup, 5)
+        r = ctl(sup, "policy", cmd="set", key="modality", value="event")
+        assert r["ok"], r
+        first_swap = r["result"]
+        assert first_swap["modality"] == "event" and first_swap["effective_tick"] >= 5
+        st = wait_emitted(sup, st["emitted"] + 6)
+        bad = ctl(sup, "policy", cmd="set", key="modality", value="depth")
+        assert not bad["ok"] and "unknown modality 'depth'" in bad["error"]
+        r = ctl(sup, "policy", cmd="set", key="modality", value="rgb")
+        assert r["ok"]
+        second_swap = r["result"]
+        st = wait_emitted(sup, st["emitted"] + 6)
+        assert st["modality"] == "rgb" and st["skipped_ticks"] == 0
+        assert st["inference_ms"]["p50"] > 0
+    finally:
+        assert sup.stop() == 0
+    entries = json.loads((tmp_path / "probe.json").read_text())
+    ticks = [e["tick"] for e in entries]
+    assert ticks == list(range(ticks[0], ticks[0] + len(ticks))), "a tick was dropped"
+    assert ticks[0] == 0
+    by_tick = {e["tick"]: e["meta"]["modality"] for e in entries}
+    k1, k2 = first_swap["effective_tick"], second_swap["effective_tick"]
+    assert {by_tick[t] for t in range(0, k1)} == {"rgb+event"}
+    assert {by_tick[t] for t in range(k1, k2)} == {"event"}
+    assert {m for t, m in by_tick.items() if t >= k2} == {"rgb"}
+    e = entries[-1]
+    assert e["arrays"]["action"] == [[2], "<f4"]
+    assert e["meta"]["input_ticks"] == {"rgb": e["tick"]} and e["meta"]["inference_ms"] > 0
+    assert [s[0] for s in e["stamps"]] == ["source", "policy"]
+
+
+def test_rgb_only_topology_refuses_event_modalities(tmp_path, ckpts):
+    topo = topology(tmp_path, ckpts, events=False, modality="rgb", only=["rgb", "event"])
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    try:
+        wait_emitted(sup, 3)
+        bad = ctl(sup, "policy", cmd="set", key="modality", value="event")
+        assert not bad["ok"]
+        assert "needs input(s) events" in bad["error"] and "does not wire" in bad["error"]
+        bad = ctl(sup, "policy", cmd="set", key="modality", value="rgb+event")
+        assert not bad["ok"] and "no checkpoint loaded (loaded: rgb, event)" in bad["error"]
+        assert ctl(sup, "policy", cmd="get", key="modality")["result"] == {"modality": "rgb"}
+        st = wait_emitted(sup, 6)
+        assert st["modality"] == "rgb" and st["swaps"] == []
+        assert not ctl(sup, "policy", cmd="set", key="directory", value="/x")["ok"]
+    finally:
+        sup.stop()

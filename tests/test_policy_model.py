@@ -1,0 +1,115 @@
+"""The ERP model, input normalisation, checkpoints and tick pairing (no processes)."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from sebvs.policy.checkpoint import load_checkpoint, model_config, save_checkpoint
+from sebvs.policy.infer import PolicySet, TickSync
+from sebvs.policy.inputs import Normalisation, channels, event_input, model_input, rgb_input
+from sebvs.policy.model import ERP, count_parameters, sinusoidal_positions_2d
+
+torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("modality, ch, nav_params, arm_params", [
+    ("rgb", 3, 103_682, 116_358), ("event", 2, 87_298, 99_974),
+    ("rgb+event", 5, 136_450, 149_126)])
+def test_variants_differ_only_in_input_channels(modality, ch, nav_params, arm_params):
+    assert channels(modality) == ch
+    nav, arm = ERP("nav", ch, 64), ERP("arm", ch, 64)
+    assert count_parameters(nav) == nav_params     # at any size: positions are not weights
+    assert count_parameters(arm) == arm_params
+    # only the patch projection depends on the channels
+    base = ERP("nav", 5, 64)
+    shapes = {k: v.shape for k, v in nav.state_dict().items()}
+    assert {k for k, s in shapes.items() if base.state_dict()[k].shape != s} == \
+        ({"embed.proj.weight"} if ch != 5 else set())
+    x = torch.rand(3, ch, 64, 64)
+    nav.eval()
+    y = nav(x)
+    assert y.shape == (3, 2) and y.abs().max() <= 1
+    assert arm(x).shape == (3, 6)
+
+
+def test_token_count_and_shape_errors():
+    m = ERP("nav", 5, 160)
+    assert m.tokens.pos.shape == (1, 100, 64)          # 160 / 16 = 10 x 10 patches
+    assert "tokens.pos" not in m.state_dict()
+    with pytest.raises(ValueError, match=r"expected input \[B, 5, 160, 160\]"):
+        m(torch.rand(1, 3, 160, 160))
+    with pytest.raises(ValueError, match="multiple of the patch"):
+        ERP("nav", 5, 100)
+
+
+def test_sinusoidal_positions_are_distinct_and_bounded():
+    pos = sinusoidal_positions_2d(10, 10, 64)
+    assert pos.shape == (100, 64)
+    assert pos.abs().max() <= 1
+    d = torch.cdist(pos, pos)
+    assert (d + torch.eye(100) * 10).min() > 0.1       # every patch position is distinct
+
+
+def test_normalisation_round_trip():
+    norm = Normalisation(size=32, event_clip=4)
+    rgb = np.random.default_rng(0).integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    x = rgb_input(rgb, norm)
+    assert x.shape == (3, 32, 32) and x.dtype == np.float32
+    assert np.array_equal(np.round(x.transpose(1, 2, 0) * 255).astype(np.uint8), rgb)
+    ev = np.random.default_rng(1).integers(0, 10, (2, 32, 32), dtype=np.uint8)
+    e = event_input(ev, norm)
+    assert e.min() >= 0 and e.max() == 1
+    assert np.array_equal(np.round(e * 4).astype(np.uint8), np.minimum(ev, 4))
+    # recorded sizes differ from the model's (events downsampled): both area-resized
+    both = model_input("rgb+event", norm, rgb=np.full((64, 48, 3), 255, np.uint8),
+                       events=np.full((2, 16, 16), 2, np.uint8))
+    assert both.shape == (5, 32, 32)
+    assert np.allclose(both[:3], 1) and np.allclose(both[3:], 0.5)
+    with pytest.raises(ValueError, match="needs an event frame"):
+        model_input("event", norm, rgb=rgb)
+
+
+def test_checkpoint_loads_weights_only_and_refuses_mismatch(tmp_path):
+    norm = Normalisation(size=32)
+    torch.manual_seed(0)
+    m = ERP("nav", 2, 32)
+    pt = save_checkpoint(m, model_config("nav", "event", norm), tmp_path)
+    assert pt.name == "nav-event.pt"
+    state = torch.load(pt, weights_only=True)
+    assert all(torch.equal(state[k], v) for k, v in m.state_dict().items())
+    model, cfg, n2 = load_checkpoint(pt, expect={"task": "nav", "modality": "event"})
+    assert n2 == norm and not model.training
+    with pytest.raises(ValueError, match="config has modality='event', expected 'rgb'"):
+        load_checkpoint(pt, expect={"modality": "rgb"})
+    # a config that does not describe the weights
+    cfg_path = pt.with_suffix(".json")
+    bad = json.loads(cfg_path.read_text())
+    bad.update(modality="rgb", channels=3)
+    cfg_path.write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match="weights do not match the config"):
+        load_checkpoint(pt)
+
+
+def test_policy_set_acts_and_tick_sync_pairs_by_tick(tmp_path):
+    norm = Normalisation(size=32)
+    for m in ("rgb", "event"):
+        save_checkpoint(ERP("nav", channels(m), 32), model_config("nav", m, norm), tmp_path)
+    ps = PolicySet({m: tmp_path / f"nav-{m}.pt" for m in ("rgb", "event")})
+    y, _, ms = ps.act("event", events=np.zeros((2, 64, 64), np.uint8))
+    assert y.shape == (2,) and y.dtype == np.float32 and ms > 0
+
+    sync = TickSync(("rgb", "events"))
+    frame = np.zeros((2, 2), np.uint8)
+    sync.put("rgb", 0, frame, 0.0)
+    assert sync.ready("rgb+event") is None and sync.ready("rgb") == 0
+    sync.put("events", 1, frame, 0.1)
+    sync.put("events", 0, frame, 0.0)
+    assert sync.ready("rgb+event") == 0
+    sync.take("rgb+event", 0)
+    assert sync.ready("event") == 1
+    sync.put("rgb", 0, frame, 0.0)                       # stale: dropped
+    assert 0 not in sync.frames["rgb"]
+    for t in range(2, 30):
+        sync.put("rgb", t, frame, None)
+    assert len(sync.frames["rgb"]) == sync.keep

@@ -1,0 +1,96 @@
+"""Behaviour-cloning training on tiny synthetic datasets: learning, determinism, the split,
+the lazy dataset and the `sebvs train` command."""
+import csv
+import json
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from sebvs.policy.dataset import EpisodeFrames, load_index, split_episodes
+from sebvs.policy.inputs import Normalisation
+from sebvs.policy.train import train
+from tests.policy_data import make_dataset
+
+torch.set_num_threads(1)
+QUIET = dict(progress=False, log=lambda s: None)
+
+
+@pytest.fixture(scope="module")
+def gain_data(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("gain"), episodes=6, frames=32, target="gain")
+
+
+def test_training_reduces_validation_loss(gain_data, tmp_path):
+    res = train(gain_data, tmp_path, "nav", ["rgb+event"], epochs=4, batch=8, lr=1e-3,
+                patience=10, norm=Normalisation(size=32), **QUIET)
+    with open(tmp_path / "nav-rgb+event-losses.csv") as f:
+        rows = list(csv.DictReader(f))
+    val = [float(r["val_loss"]) for r in rows]
+    assert len(val) == 4
+    assert min(val[1:]) < 0.5 * val[0], val
+    cfg = json.loads((tmp_path / "nav-rgb+event.json").read_text())
+    assert cfg == {"version": 1, **res["rgb+event"]}
+    assert cfg["training"]["best_val_loss"] == pytest.approx(min(val))
+    assert cfg["channels"] == 5 and cfg["channel_order"] == ["r", "g", "b", "on", "off"]
+    assert cfg["normalisation"]["event_clip"] == 8 and len(cfg["dataset"]["hash"]) == 64
+    assert (tmp_path / "nav-losses.png").stat().st_size > 5000
+
+
+def test_same_seed_same_weights(gain_data, tmp_path):
+    kw = dict(epochs=2, batch=8, max_frames=48, norm=Normalisation(size=32), **QUIET)
+    train(gain_data, tmp_path / "a", "nav", ["event"], seed=3, **kw)
+    train(gain_data, tmp_path / "b", "nav", ["event"], seed=3, **kw)
+    train(gain_data, tmp_path / "c", "nav", ["event"], seed=4, **kw)
+    a, b, c = (torch.load(tmp_path / d / "nav-event.pt", weights_only=True) for d in "abc")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_split_is_by_episode_and_seeded(tmp_path):
+    eps = [{"file": f"e{i}.h5", "frames": 10} for i in range(10)]
+    tr, va = split_episodes(eps, 0.2, seed=1)
+    assert len(va) == 2 and len(tr) == 8
+    assert not {e["file"] for e in tr} & {e["file"] for e in va}
+    assert split_episodes(eps, 0.2, seed=1) == (tr, va)
+    assert split_episodes(eps, 0.2, seed=2) != (tr, va)
+    with pytest.raises(ValueError, match="at least 2 episodes"):
+        split_episodes(eps[:1], 0.2, 0)
+
+
+def test_dataset_reads_frames_lazily(tmp_path):
+    root = make_dataset(tmp_path, episodes=3, frames=5, height=24, width=40, task="arm")
+    eps = load_index(root)
+    ds = EpisodeFrames(root, eps, "arm", "rgb+event", Normalisation(size=32))
+    assert len(ds) == 15 and not ds._handles           # nothing opened yet
+    x, y = ds[7]
+    assert x.shape == (5, 32, 32) and y.shape == (6,)
+    assert list(ds._handles) == [1]                     # only the episode read from
+    assert EpisodeFrames(root, eps, "arm", "rgb", Normalisation(size=32), max_frames=4
+                         ).episodes_of() == {e["file"] for e in eps}
+    ds.close()
+
+
+def test_cli_trains_all_modalities_and_plots(tmp_path):
+    from sebvs.cli import main
+    data = make_dataset(tmp_path / "data", episodes=4, frames=8, task="arm")
+    out = tmp_path / "out"
+    assert main(["train", "--task", "arm", "--modality", "all", "--data", str(data),
+                 "--out", str(out), "--size", "32", "--epochs", "2", "--batch", "8",
+                 "--no-progress"]) == 0
+    for m in ("rgb", "event", "rgb+event"):
+        cfg = json.loads((out / f"arm-{m}.json").read_text())
+        assert cfg["task"] == "arm" and cfg["modality"] == m
+        assert cfg["training"]["loss"] == "smooth_l1" and cfg["training"]["lr"] == 1e-4
+        assert cfg["training"]["plateau"]["factor"] == 0.5
+        assert not set(cfg["dataset"]["train_episodes"]) & set(cfg["dataset"]["val_episodes"])
+    assert (out / "arm-losses.png").exists()
+
+
+def test_help_does_not_import_torch():
+    import subprocess
+    code = ("import sys; from sebvs.cli import build_parser; build_parser(); "
+            "import actors.policy; print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "False", out.stderr
