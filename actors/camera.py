@@ -86,7 +86,7 @@ class Camera(Actor):
 
     def _pose(self, state: dict) -> None:
         self.scene.set_state(self.model, self.data, state)
-        mujoco.mj_kinematics(self.model, self.data)
+        self.scene.kinematics(self.model, self.data)
 
     async def on_state(self, msg: Message) -> None:
         meta = msg.meta

@@ -293,7 +293,7 @@ class NavScene(Scene):
         Kinematics are recomputed for the current qpos/mocap (mj_step leaves them one step
         behind), so the truth matches what the camera renders from state().
         """
-        mujoco.mj_kinematics(model, data)
+        self.kinematics(model, data)
         w, h = int(self.config["width"]), int(self.config["height"])
         c = data.mocap_pos[self.target_mocap].copy()
         corners = c + CUBE * np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)

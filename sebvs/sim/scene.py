@@ -8,7 +8,8 @@ Split of roles across processes:
   sim actor     compile() -> reset() -> loop { scripted(); mj_step } with apply_command()
                 at control ticks, truth()/done() to end episodes, state() on the wire.
   camera actor  compile() its own model from the same config, then set_state() +
-                mj_forward (or mj_kinematics) and render `cameras`.
+                Scene.kinematics() (not mj_kinematics alone: cameras would be stale)
+                and render `cameras`.
 
 Config is deterministic: mjcf() depends on the config only, never on the episode seed, so
 the camera's model is identical to the sim's.
@@ -140,9 +141,20 @@ class Scene(ABC):
         return {"qpos": data.qpos.copy(), "mocap_pos": data.mocap_pos.copy(),
                 "mocap_quat": data.mocap_quat.copy()}
 
+    @staticmethod
+    def kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Positions of bodies, geoms, cameras and lights for the current qpos/mocap.
+
+        mj_kinematics alone leaves cam_xpos/light_xpos stale (mj_camlight computes them):
+        renderers and image projections must call this (or mj_forward) instead.
+        """
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)       # subtree com, for tracking camera/light modes
+        mujoco.mj_camlight(model, data)
+
     def set_state(self, model: mujoco.MjModel, data: mujoco.MjData,
                   state: dict[str, np.ndarray]) -> None:
-        """Inverse of state(); the caller then runs mj_kinematics (or mj_forward)."""
+        """Inverse of state(); the caller then runs Scene.kinematics (or mj_forward)."""
         data.qpos[:] = state["qpos"]
         if model.nmocap:
             data.mocap_pos[:] = state["mocap_pos"]
