@@ -66,20 +66,30 @@ def rgb_input(rgb: np.ndarray, norm: Normalisation) -> np.ndarray:
     """RGB uint8 [H, W, 3] -> float32 [3, S, S] in [0, 1]."""
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
-    img = _resize(np.ascontiguousarray(rgb), norm.size).astype(np.float32)
-    img *= norm.rgb_scale
-    return np.ascontiguousarray(img.transpose(2, 0, 1))
+    img = _resize(np.ascontiguousarray(rgb), norm.size)
+    # split into planes on uint8, then widen: ~10x faster than a float HWC -> CHW transpose
+    out = np.empty((3, norm.size, norm.size), np.float32)
+    for c, plane in enumerate(cv2.split(img)):
+        out[c] = plane
+    out *= np.float32(norm.rgb_scale)
+    return out
 
 
 def event_input(events: np.ndarray, norm: Normalisation) -> np.ndarray:
     """Event counts uint8 [2, H, W] (ON, OFF) -> float32 [2, S, S] in [0, 1]."""
     if events.ndim != 3 or events.shape[0] != 2:
         raise ValueError(f"events must be [2, H, W] (ON, OFF counts), got {list(events.shape)}")
-    clipped = np.minimum(events, norm.event_clip).astype(np.float32)
-    clipped *= 1.0 / norm.event_clip
-    # cv2 wants channels last; area-resize both polarities in one call
-    hw2 = _resize(np.ascontiguousarray(clipped.transpose(1, 2, 0)), norm.size)
-    return np.ascontiguousarray(hw2.transpose(2, 0, 1))
+    out = np.empty((2, norm.size, norm.size), np.float32)
+    for c in range(2):
+        # per polarity, on contiguous 2-D planes: cv2.min keeps uint8 and is ~10x faster
+        # than np.minimum here, and no channels-last transpose copy is needed
+        plane = np.ascontiguousarray(events[c])
+        if plane.dtype != np.uint8:
+            plane = np.minimum(plane, norm.event_clip).astype(np.uint8)
+        clipped = cv2.min(plane, norm.event_clip).astype(np.float32)
+        out[c] = _resize(clipped, norm.size)
+    out *= 1.0 / norm.event_clip
+    return out
 
 
 def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,

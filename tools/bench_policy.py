@@ -1,0 +1,131 @@
+"""Benchmark the ERP on this CPU: batch-1 inference latency and training throughput.
+
+    python tools/bench_policy.py [--quick] [--json FILE]
+
+JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
+       "training":  [{"size", "samples_per_s", "batch", "threads", ...}], "env": {...}}
+
+Inference is what the policy actor does per tick: model.eval(), torch.inference_mode(),
+batch 1, the nav head (the arm head adds two small linear layers). Input preparation
+(inputs.py: resize + scale from a 640x640 frame) is timed separately as `prep_ms`.
+Training is one Adam step (forward, MSE, backward, update) on random batches.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sebvs.policy.inputs import MODALITIES, Normalisation, channels, model_input  # noqa: E402
+from sebvs.policy.model import ERP, count_parameters  # noqa: E402
+
+
+def _timed(fn, budget_s: float, min_iter: int, max_iter: int) -> np.ndarray:
+    """Call fn repeatedly for about budget_s (bounded iterations); returns ms per call."""
+    fn()
+    fn()   # warm-up: first calls allocate
+    out = []
+    end = time.perf_counter() + budget_s
+    while len(out) < max_iter and (len(out) < min_iter or time.perf_counter() < end):
+        t0 = time.perf_counter()
+        fn()
+        out.append((time.perf_counter() - t0) * 1e3)
+    return np.asarray(out)
+
+
+def bench_inference(modality: str, size: int, threads: int, budget_s: float) -> dict:
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    model = ERP("nav", channels(modality), size).eval()
+    x = torch.rand(1, channels(modality), size, size)
+
+    def step():
+        with torch.inference_mode():
+            model(x)
+
+    ms = _timed(step, budget_s, min_iter=10, max_iter=5000)
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (640, 640, 3), dtype=np.uint8)
+    ev = rng.integers(0, 4, (2, 640, 640), dtype=np.uint8)
+    norm = Normalisation(size=size)
+    prep = _timed(lambda: model_input(modality, norm, rgb=rgb, events=ev), budget_s / 4, 5, 500)
+    return {"modality": modality, "size": size, "threads": threads, "tokens": (size // 16) ** 2,
+            "parameters": count_parameters(model), "p50_ms": round(float(np.median(ms)), 4),
+            "p90_ms": round(float(np.percentile(ms, 90)), 4),
+            "p99_ms": round(float(np.percentile(ms, 99)), 4), "n": int(ms.size),
+            "prep_ms_from_640": round(float(np.median(prep)), 4)}
+
+
+def bench_training(size: int, batch: int, threads: int, steps: int) -> dict:
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    model = ERP("nav", 5, size).train()
+    opt = torch.optim.Adam(model.parameters(), lr=2e-4, weight_decay=1e-4)
+    x, y = torch.rand(batch, 5, size, size), torch.rand(batch, 2) * 2 - 1
+
+    def step():
+        loss = torch.nn.functional.mse_loss(model(x), y)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    ms = _timed(step, 0.0, min_iter=steps, max_iter=steps)
+    per_batch = float(np.median(ms))
+    return {"size": size, "batch": batch, "threads": threads, "modality": "rgb+event",
+            "ms_per_batch": round(per_batch, 2), "samples_per_s": round(batch * 1e3 / per_batch, 1),
+            "steps": steps}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short timings (under 40 s)")
+    ap.add_argument("--json", metavar="FILE", help="write the results here")
+    ap.add_argument("--sizes", default="160,320,640")
+    ap.add_argument("--threads", default="1,2")
+    args = ap.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    threads = [int(t) for t in args.threads.split(",")]
+    budget = 0.35 if args.quick else 2.0
+    t_start = time.monotonic()
+
+    inference = []
+    for size in sizes:
+        for t in threads:
+            for m in MODALITIES:
+                r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5))
+                inference.append(r)
+                print(f"inference {m:>9} {size:>4}px {t} thr: p50 {r['p50_ms']:.3f} ms  "
+                      f"p99 {r['p99_ms']:.3f} ms  (prep {r['prep_ms_from_640']:.3f} ms)",
+                      flush=True)
+    training = []
+    for size in sizes:
+        # batch 32 as the paper; at 640 px one batch of 32 takes tens of seconds on 2 cores,
+        # so the quick run measures a smaller batch there (samples/s is per sample anyway)
+        batch = 32 if size <= 320 or not args.quick else 4
+        steps = (2 if args.quick else 5) if size <= 320 else (1 if args.quick else 2)
+        r = bench_training(size, batch, max(threads), steps)
+        training.append(r)
+        print(f"training {size:>4}px batch {batch}: {r['ms_per_batch']:.1f} ms/batch, "
+              f"{r['samples_per_s']:.1f} samples/s", flush=True)
+
+    result = {"inference": inference, "training": training,
+              "env": {"torch": torch.__version__, "python": platform.python_version(),
+                      "machine": platform.machine(), "processor": platform.processor(),
+                      "quick": args.quick, "seconds": round(time.monotonic() - t_start, 1)}}
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"done in {result['env']['seconds']} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
