@@ -83,6 +83,9 @@ class Sim(Actor):
                 f"sim: control period ({self.steps_per_control} steps) must be a multiple of "
                 f"the render period ({self.steps_per_render} steps at physics_hz "
                 f"{physics_hz:g}): choose render_hz = n * control_hz")
+        for key in ("integrator", "timestep"):
+            if key in p.config:
+                raise ValueError(f"sim: set {key!r} as a sim parameter, not inside config")
         self.config = {**p.config, "integrator": p.integrator, "timestep": self.dt}
         self.scene = make_scene(p.scene, **self.config)
         self.model = self.scene.compile()
