@@ -26,7 +26,7 @@ def _cmd_train(args) -> int:
     train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
           epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
           num_workers=args.workers, threads=args.threads, val_fraction=args.val_fraction,
-          patience=args.patience, lr=args.lr,
+          patience=args.patience, lr=args.lr, device=args.device,
           norm=Normalisation(size=args.size, event_clip=args.event_clip))
     return 0
 
@@ -60,5 +60,8 @@ def register(subparsers) -> None:
                    help="event counts saturate here before scaling to [0, 1] (default 8)")
     t.add_argument("--workers", type=int, default=0, help="DataLoader workers (default 0)")
     t.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's)")
+    t.add_argument("--device", default="cpu",
+                   help="torch device, e.g. cuda for the paper preset (default cpu; "
+                        "bit-reproducible on cpu only)")
     t.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     t.set_defaults(func=_cmd_train)

@@ -107,7 +107,7 @@ class TickSync:
             del buf[min(buf)]
 
     def ready(self, modality: str) -> int | None:
-        """Smallest tick (after the last used) for which every stream of ``modality`` has a frame."""
+        """Smallest tick after the last used for which every stream of ``modality`` has a frame."""
         needed = [self.frames[s] for s in MODALITY_INPUTS[modality]]
         common = set(needed[0]).intersection(*needed[1:])
         return min(common) if common else None

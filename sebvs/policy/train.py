@@ -12,10 +12,10 @@ trained into that directory on one plot (the paper's Fig. 6).
 """
 from __future__ import annotations
 
-import copy
 import csv
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -40,6 +40,7 @@ class TrainSettings:
     max_frames: int = 0
     num_workers: int = 0
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
+    device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
     norm: Normalisation = field(default_factory=Normalisation)
 
 
@@ -70,7 +71,8 @@ def _collate(batch):
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
 
 
-def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True):
+def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True,
+           device: str = "cpu"):
     """One pass; trains if an optimizer is given. Returns the mean loss per sample."""
     import torch
     from tqdm import tqdm
@@ -81,6 +83,7 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
                dynamic_ncols=True)
     with torch.set_grad_enabled(training):
         for x, y in bar:
+            x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
             loss = criterion(model(x), y)
             if training:
                 optimizer.zero_grad(set_to_none=True)
@@ -113,10 +116,14 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     prev_det = torch.are_deterministic_algorithms_enabled()
     if s.threads:
         torch.set_num_threads(s.threads)
-    torch.use_deterministic_algorithms(True)
+    # deterministic kernels; cuBLAS needs a fixed workspace for that, and warn_only keeps a
+    # GPU run going where an op has no deterministic variant
+    if s.device != "cpu":
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.use_deterministic_algorithms(True, warn_only=s.device != "cpu")
     try:
         _seed_everything(s.seed)
-        model = ERP(s.task, channels(modality), s.norm.size)
+        model = ERP(s.task, channels(modality), s.norm.size).to(s.device)
         gen = torch.Generator().manual_seed(s.seed)
         train_loader = DataLoader(train_set, batch_size=s.batch, shuffle=True, generator=gen,
                                   num_workers=s.num_workers, collate_fn=_collate,
@@ -137,14 +144,16 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         for epoch in range(1, s.epochs + 1):
             tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
             lr = optimizer.param_groups[0]["lr"]
-            tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress)
-            va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress)
+            tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress,
+                        s.device)
+            va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress, s.device)
             rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
                          "val_loss": va, "lr": lr})
             log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}")
             if va < best:
                 best, bad = va, 0
-                best_state = copy.deepcopy(model.state_dict())
+                best_state = {k: v.detach().to("cpu", copy=True)
+                              for k, v in model.state_dict().items()}
             else:
                 bad += 1
             if scheduler is not None:
@@ -152,6 +161,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
             if bad >= s.patience:
                 log(f"  early stop: no better validation loss for {bad} epochs")
                 break
+        model.cpu()
         if best_state is not None:     # else every validation loss was NaN: keep the last
             model.load_state_dict(best_state)
     finally:
@@ -167,7 +177,8 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                           "val_episodes": [e["file"] for e in val_eps],
                           "train_frames": len(train_set), "val_frames": len(val_set)},
               "training": {"lr": s.lr, "weight_decay": s.weight_decay, "loss": s.loss,
-                           "batch": s.batch, "epochs": s.epochs, "epochs_run": len(rows),
+                           "batch": s.batch, "device": s.device, "epochs": s.epochs,
+                           "epochs_run": len(rows),
                            "patience": s.patience, "plateau": s.plateau,
                            "best_val_loss": best, "seed": s.seed, "max_frames": s.max_frames,
                            "seconds": round(time.monotonic() - t0, 2)},
