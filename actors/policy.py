@@ -2,6 +2,7 @@
 
 Inputs  rgb     from the camera:       arrays["rgb"]   uint8 [H, W, 3], tick
         events  from the accumulator:  arrays["frame"] uint8 [2, H, W], tick
+        (samples with meta control=False, taken between control ticks, are ignored)
 Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 [6]} (arm),
         tick = the input tick, meta {"modality", "input_ticks", "inference_ms", ...}
 
@@ -76,6 +77,8 @@ class Policy(Actor):
     async def _receive(self, stream: str, msg: Message, array) -> None:
         if msg.tick is None:
             raise ValueError(f"{stream} message from {msg.source} has no tick")
+        if msg.meta.get("control") is False:
+            return      # a sample between control ticks (camera rgb_hz > control rate)
         self.sync.put(stream, msg.tick, array, msg.t_sim)
         await self._step(msg)
 
