@@ -78,6 +78,11 @@ class Sim(Actor):
         self.dt = 1.0 / physics_hz
         self.steps_per_control = max(1, round(physics_hz / p.control_hz))
         self.steps_per_render = max(1, round(physics_hz / p.render_hz))
+        for key, hz, n in (("control_hz", p.control_hz, self.steps_per_control),
+                           ("render_hz", p.render_hz, self.steps_per_render)):
+            if abs(physics_hz / hz - n) > 1e-6 * n:
+                raise ValueError(f"sim: {key} {hz:g} must divide physics_hz {physics_hz:g} "
+                                 f"(a whole number of physics steps per period)")
         if self.steps_per_control % self.steps_per_render:
             raise ValueError(
                 f"sim: control period ({self.steps_per_control} steps) must be a multiple of "

@@ -97,7 +97,9 @@ def test_bad_commands_rejected_last_good_kept():
 
 def test_bad_rates_are_refused():
     with pytest.raises(ValueError, match="multiple"):
-        make_sim(control_hz=20.0, render_hz=30.0)
+        make_sim(control_hz=20.0, render_hz=50.0)
+    with pytest.raises(ValueError, match="render_hz 200 must divide physics_hz 500"):
+        make_sim(render_hz=200.0)
     with pytest.raises(ValueError, match="'integrator' as a sim parameter"):
         make_sim(config={"integrator": "rk4"})
     with pytest.raises(ValueError, match="'colour'"):
