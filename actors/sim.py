@@ -65,6 +65,8 @@ class Sim(Actor):
         max_speed_factor: float = 0.0        # lockstep without action: 0 = unpaced
         action_timeout_s: float = 10.0       # lockstep: give up waiting, keep last command
         check_every: int = 1                 # stability check period, physics steps
+        linger_s: float = 0.5                # after the last episode, before ending the
+                                             # run: consumers drain what is queued
 
     # ------------------------------------------------------------------ setup
     async def setup(self) -> None:
@@ -176,6 +178,8 @@ class Sim(Actor):
             await self._episode(k)
             k += 1
         if not self.stopping.is_set():
+            # The run ends when this source finishes; queued frames downstream would be lost.
+            await self.sleep_until(time.monotonic_ns() + int(self.params.linger_s * 1e9))
             self.request_stop(f"{k} episode(s) done")
 
     def _pace_factor(self) -> float:
