@@ -11,7 +11,7 @@ Outputs, each rendered only when some actor consumes it (self.consumed):
          episode, control (True on the sample of a control tick), t_ep. tick = the sim's.
   depth  {"depth": (H, W) float32, m} and seg {"seg": (H, W, 2) int32 [id, mjtObj type]}
          at the RGB times.
-H, W are the scene config's height/width. Frames are rendered straight into the
+H, W = scene.image_shape() (the scene config's height/width). Frames are rendered straight into the
 runtime's shared-memory slots (self.reserve).
 """
 from __future__ import annotations
@@ -74,9 +74,8 @@ class Camera(Actor):
         if cam not in self.scene.cameras:
             raise ValueError(f"camera: {cam!r} is not one of {self.scene.cameras}")
         self.cam = cam
-        self.h = int(self.scene.config.get("height", 160))
-        self.w = int(self.scene.config.get("width", 160))
-        self.blur = int(self.scene.config.get("rgb_blur", 0) or 0)
+        self.h, self.w = self.scene.image_shape()
+        self.blur = self.scene.rgb_blur()
         self.history: collections.deque = collections.deque(maxlen=max(1, self.blur))
         self.renderer = FrameRenderer(self.model, self.h, self.w)
         self.scratch = np.empty((self.h, self.w, 3), np.uint8)

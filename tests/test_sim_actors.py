@@ -41,7 +41,8 @@ def make_sim(connected=frozenset(), clock="lockstep", **params):
     return sim, node
 
 
-def test_divergence_ends_the_episode_and_no_nan_is_emitted():
+def test_divergence_ends_the_episode_and_no_nan_is_emitted(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)      # MuJoCo writes MUJOCO_LOG.TXT into the cwd on a warning
     sim, node = make_sim()
     scripted = sim.scene.scripted
 

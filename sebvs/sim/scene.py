@@ -98,6 +98,15 @@ class Scene(ABC):
         # Energy is needed by the stability checks (sebvs.sim.stability).
         model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
 
+    def image_shape(self) -> tuple[int, int]:
+        """(height, width) in px of the images the camera renders for this scene: config
+        keys height/width (default 160 x 160). The camera actor and truth() use it."""
+        return int(self.config.get("height", 160)), int(self.config.get("width", 160))
+
+    def rgb_blur(self) -> int:
+        """Sub-frames averaged per RGB frame (config key rgb_blur; 0/1 = no blur)."""
+        return int(self.config.get("rgb_blur", 0) or 0)
+
     def light_xml(self) -> str:
         """`castshadow` attribute value for lights: shadows only when the config asks."""
         return "true" if self.config["shadows"] else "false"
