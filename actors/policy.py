@@ -34,13 +34,11 @@ class Policy(Actor):
         threads: int = 1             # torch.set_num_threads
 
     async def setup(self) -> None:
-        import torch
-
         from sebvs.policy.infer import PolicySet, TickSync, resolve_checkpoints
         from sebvs.policy.inputs import MODALITY_INPUTS
         self._inputs_of = MODALITY_INPUTS
         p = self.params
-        torch.set_num_threads(max(1, p.threads))
+        _set_threads(p.threads)
         table = resolve_checkpoints(p.checkpoints, p.directory, p.task, p.modalities)
         self.policies = PolicySet(table, task=p.task if p.directory else None)
         self._check_usable(p.modality)
@@ -124,9 +122,8 @@ class Policy(Actor):
             await self._step(None)
             return {"modality": value, "effective_tick": effective}
         if key == "threads":
-            import torch
             result = await super().control(key, value)
-            torch.set_num_threads(max(1, self.params.threads))
+            _set_threads(self.params.threads)
             return result
         raise ValueError(f"{key!r} cannot change while running (only modality, threads)")
 
@@ -135,3 +132,12 @@ class Policy(Actor):
                 "emitted": self.emitted, "last_tick": self.sync.last_tick,
                 "skipped_ticks": self.skipped_ticks, "swaps": self.swaps,
                 "inference_ms": summarize(self.inference_ms, 1.0)}
+
+
+def _set_threads(n: int) -> None:
+    """Threads for torch and OpenCV (input resizing) alike: actors share the cores, and a
+    second cv2 thread waiting on a busy core costs more than it saves."""
+    import cv2
+    import torch
+    torch.set_num_threads(max(1, n))
+    cv2.setNumThreads(max(1, n))

@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -43,6 +44,7 @@ def _timed(fn, budget_s: float, min_iter: int, max_iter: int) -> np.ndarray:
 
 def bench_inference(modality: str, size: int, threads: int, budget_s: float) -> dict:
     torch.set_num_threads(threads)
+    cv2.setNumThreads(threads)     # as the policy actor does
     torch.manual_seed(0)
     model = ERP("nav", channels(modality), size).eval()
     x = torch.rand(1, channels(modality), size, size)
