@@ -241,9 +241,8 @@ class NavScene(Scene):
         data.ctrl[2] = 0.0
 
     def scripted(self, model, data) -> None:
-        x, y = self.trajectory.step(model.opt.timestep)
-        data.mocap_pos[self.target_mocap, 0] = x
-        data.mocap_pos[self.target_mocap, 1] = y
+        xy = self.trajectory.step(model.opt.timestep)
+        data.mocap_pos[self.target_mocap, :2] = xy
         if self.config["lighting"] == "flicker":
             # A mains-like flicker: intensity between 30% and 100%.
             s = 0.65 + 0.35 * math.sin(2 * math.pi * self.config["flicker_hz"] * data.time

@@ -10,6 +10,7 @@ Units: metres, seconds, radians. Positions are (x, y) in the world frame.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,24 +64,30 @@ class WaypointTrajectory:
         self.n_waypoints += 1
 
     def step(self, dt: float) -> np.ndarray:
-        """Advance by dt seconds; returns a copy of the (x, y) position."""
+        """Advance by dt seconds; returns a copy of the (x, y) position.
+
+        Plain float math: this runs before every physics step, where numpy's per-call
+        overhead on 2-vectors would cost more than the step itself.
+        """
         if self.stop_left > 0.0:
             self.stop_left = max(0.0, self.stop_left - dt)
             return self.pos.copy()
-        delta = self.waypoint - self.pos
-        dist = float(np.hypot(delta[0], delta[1]))
+        px, py = float(self.pos[0]), float(self.pos[1])
+        dx, dy = float(self.waypoint[0]) - px, float(self.waypoint[1]) - py
+        dist = math.hypot(dx, dy)
         if dist < self.cfg.reach:
             self._next_waypoint()
             return self.pos.copy()
-        want = float(np.arctan2(delta[1], delta[0]))
-        err = (want - self.heading + np.pi) % (2 * np.pi) - np.pi
+        want = math.atan2(dy, dx)
+        err = (want - self.heading + math.pi) % (2 * math.pi) - math.pi
         if self.snap:                        # sudden turn: face the new waypoint at once
             self.heading, self.snap, err = want, False, 0.0
         else:
             lim = self.cfg.max_turn_rate * dt
-            self.heading += float(np.clip(err, -lim, lim))
+            self.heading += min(max(err, -lim), lim)
         # Slow down while the heading is far off, so smooth turns do not orbit the waypoint.
-        speed = self.seg_speed * max(0.0, float(np.cos(err)))
+        speed = self.seg_speed * max(0.0, math.cos(err))
         step = min(speed * dt, dist)
-        self.pos = self.pos + step * np.array([np.cos(self.heading), np.sin(self.heading)])
+        self.pos = np.array([px + step * math.cos(self.heading),
+                             py + step * math.sin(self.heading)])
         return self.pos.copy()
