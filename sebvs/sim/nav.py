@@ -24,7 +24,6 @@ these intrinsics (pinhole, focal f = height / (2 tan(fovy/2)) px, row 0 at the t
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import mujoco
 import numpy as np
