@@ -34,6 +34,7 @@ class NavTracker(Actor):
     async def setup(self) -> None:
         self.frames: dict[int, list] = defaultdict(list)   # episode -> [(tick, truth, t_ep)]
         self.modality_at: dict[int, str] = {}              # tick -> modality that acted
+        self.inference_ms: dict[int, float] = {}           # tick -> policy latency
         self.episodes: dict[int, dict] = {}                # episode -> start/end meta
         self.finished: list[dict] = []
         self._timers: dict[int, asyncio.TimerHandle] = {}
@@ -49,6 +50,8 @@ class NavTracker(Actor):
 
     async def on_action(self, msg: Message) -> None:
         self.modality_at[msg.tick] = msg.meta.get("modality", "expert")
+        if "inference_ms" in msg.meta:
+            self.inference_ms[msg.tick] = float(msg.meta["inference_ms"])
 
     async def on_episode(self, msg: Message) -> None:
         m = msg.meta
@@ -91,7 +94,12 @@ class NavTracker(Actor):
         record = {**self.params.label, "episode": ep, "seed": info.get("seed"),
                   "reason": info.get("reason", ""), "ticks": len(rows),
                   "metrics": self._metrics(rows),
-                  "by_modality": {mod: self._metrics(r) for mod, r in segments.items()}}
+                  "by_modality": {mod: self._metrics(r) for mod, r in segments.items()},
+                  "trace_error_px": [_centre_error(t) for _, t, _ in rows],
+                  "inference_ms": [self.inference_ms.pop(k) for k, _, _ in rows
+                                   if k in self.inference_ms]}
+        for k, _, _ in rows:
+            self.modality_at.pop(k, None)
         self.finished.append(record)
         self.telemetry("episode_metrics", **{k: record[k] for k in ("episode", "ticks")},
                        success=record["metrics"]["success"])
@@ -109,3 +117,11 @@ class NavTracker(Actor):
     def stats(self) -> dict:
         return {"episodes_finished": len(self.finished),
                 "last": self.finished[-1] if self.finished else None}
+
+
+def _centre_error(truth: dict) -> float | None:
+    """Distance of the target centroid from the image centre, px (None when not visible)."""
+    if not truth["visible"]:
+        return None
+    (u, v), (w, h) = truth["centroid"], truth["image"]
+    return round(((u - w / 2) ** 2 + (v - h / 2) ** 2) ** 0.5, 2)

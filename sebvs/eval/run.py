@@ -1,0 +1,219 @@
+"""`sebvs eval`: closed-loop evaluation through the real topology, every actor in the loop.
+
+For each condition and each modality (plus the expert as the reference row) one run of
+the policy topology plays N seeded episodes: the same topology seed gives every modality,
+and the expert, the same episode seeds and so the same target trajectories. The tracker
+sink appends one JSON line per finished episode; this module only chooses overrides,
+supervises the runs with a progress bar, and aggregates.
+
+Resuming: a (condition, modality) whose episode file already holds N episodes is skipped;
+one that holds fewer is run again from its first episode (runs are short and episodes
+are seeded, so the numbers are the same).
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ..runtime.supervisor import RunFailed, Supervisor, control_request
+from ..runtime.topology import load_topology
+from .report import plot_success, render_report
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# condition -> topology overrides (nav scene settings; see sebvs/sim/nav.py)
+NAV_CONDITIONS: dict[str, list[str]] = {
+    "nominal": [],
+    "fast": ['sim.config.target_speed="fast"'],
+    "low_light": ['sim.config.lighting="low"'],
+    "flicker": ['sim.config.lighting="flicker"'],
+    "blur": ["sim.config.rgb_blur=8"],
+}
+MODALITIES = ("rgb", "event", "rgb+event")
+
+
+@dataclass
+class EvalPlan:
+    task: str
+    modalities: list[str]
+    conditions: list[str]
+    episodes: int
+    out: Path
+    clock: str = "lockstep"
+    seed: int = 1000
+    checkpoints: str = "checkpoints"
+    expert: bool = True
+    policy_topology: Path = ROOT / "topologies" / "nav_policy.toml"
+    expert_topology: Path = ROOT / "topologies" / "nav_expert.toml"
+    extra: list[str] = field(default_factory=list)
+
+    def validate(self) -> None:
+        if self.task != "nav":
+            raise ValueError(f"task {self.task!r}: only 'nav' runs through `sebvs eval` so far "
+                             f"(the arm evaluation needs the grasp executor in the loop)")
+        unknown = [m for m in self.modalities if m not in MODALITIES]
+        if unknown:
+            raise ValueError(f"unknown modality {unknown[0]!r} (one of {', '.join(MODALITIES)})")
+        unknown = [c for c in self.conditions if c not in NAV_CONDITIONS]
+        if unknown:
+            raise ValueError(f"unknown condition {unknown[0]!r} "
+                             f"(one of {', '.join(NAV_CONDITIONS)})")
+        if self.episodes < 1:
+            raise ValueError("--episodes must be at least 1")
+        if self.clock not in ("lockstep", "realtime"):
+            raise ValueError(f"--clock {self.clock!r} is not lockstep or realtime")
+
+    def runs(self) -> list[tuple[str, str]]:
+        mods = (["expert"] if self.expert else []) + list(self.modalities)
+        return [(c, m) for c in self.conditions for m in mods]
+
+    def episode_file(self, condition: str, modality: str) -> Path:
+        return self.out / "episodes" / f"{condition}__{modality.replace('+', '_')}.jsonl"
+
+    def overrides(self, condition: str, modality: str) -> tuple[Path, list[str]]:
+        path = self.episode_file(condition, modality)
+        common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
+                  f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
+                  f'tracker.label={{condition="{condition}", modality="{modality}"}}',
+                  *NAV_CONDITIONS[condition]]
+        if modality == "expert":
+            return self.expert_topology, common + self.extra
+        sets = [f'policy.modality="{modality}"', f'policy.directory="{self.checkpoints}"',
+                f'policy.modalities=["{modality}"]']
+        if modality == "rgb":   # no events wired: emulator and accumulator are pruned
+            sets.append('policy.inputs={rgb="camera/rgb"}')
+        return self.policy_topology, common + sets + self.extra
+
+
+def _read_episodes(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            break   # a line cut by an interruption: what follows is not trusted
+    return out
+
+
+def run_one(plan: EvalPlan, condition: str, modality: str, bar: tqdm) -> list[dict]:
+    path = plan.episode_file(condition, modality)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.unlink(missing_ok=True)
+    topology, overrides = plan.overrides(condition, modality)
+    sup = Supervisor(load_topology(topology, overrides), runs_dir=plan.out / "runs",
+                     echo=lambda text: tqdm.write(text))
+    done_before = bar.n
+    last_poll = [0.0]
+
+    def poll(dt: float) -> None:
+        time.sleep(dt)
+        if time.monotonic() - last_poll[0] < 0.5:
+            return
+        last_poll[0] = time.monotonic()
+        reply = control_request(sup.ctx, sup.specs["tracker"]["control"], {"cmd": "stats"}, 0.5)
+        if reply and reply.get("ok"):
+            n = reply["result"]["actor_stats"]["episodes_finished"]
+            bar.update(done_before + n - bar.n)
+
+    try:
+        sup.start()
+        code = sup.wait(None, poll)
+    except BaseException:
+        sup.stop()
+        raise
+    if code != 0:
+        raise RunFailed(f"{condition}/{modality}: {sup.failure}")
+    episodes = _read_episodes(path)
+    bar.update(done_before + len(episodes) - bar.n)
+    if len(episodes) < plan.episodes:
+        raise RunFailed(f"{condition}/{modality}: {len(episodes)} of {plan.episodes} episodes "
+                        f"finished (see {sup.rundir}/logs)")
+    return episodes
+
+
+def evaluate(plan: EvalPlan) -> dict:
+    plan.validate()
+    plan.out.mkdir(parents=True, exist_ok=True)
+    runs = plan.runs()
+    bar = tqdm(total=len(runs) * plan.episodes, unit="episode", desc="eval")
+    for condition, modality in runs:
+        bar.set_postfix_str(f"{condition}/{modality}")
+        have = _read_episodes(plan.episode_file(condition, modality))
+        if len(have) >= plan.episodes:
+            bar.update(plan.episodes)
+            continue
+        run_one(plan, condition, modality, bar)
+    bar.close()
+    results = {"task": plan.task, "clock": plan.clock, "seed": plan.seed,
+               "episodes_per_run": plan.episodes, "episodes": []}
+    for condition, modality in runs:
+        for rec in _read_episodes(plan.episode_file(condition, modality))[:plan.episodes]:
+            results["episodes"].append({"modality": modality, "condition": condition,
+                                        "seed": rec["seed"], "metrics": rec["metrics"],
+                                        "trace_error_px": rec.get("trace_error_px", []),
+                                        "inference_ms": rec.get("inference_ms", [])})
+    write_outputs(results, plan.out)
+    return results
+
+
+def write_outputs(results: dict, out: Path) -> None:
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    (out / "report.md").write_text(render_report(results) + "\n")
+    plot_success(results, out / "success.png")
+    plot_traces(results, out / "centroid_error.png")
+    plot_latency(results, out / "latency.png")
+
+
+def plot_traces(results: dict, path: Path) -> None:
+    """Centroid error against time, one panel per condition, first episode of each modality."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    conds = sorted({e["condition"] for e in results["episodes"]})
+    fig, axes = plt.subplots(len(conds) or 1, 1, figsize=(7, 2.4 * max(1, len(conds))),
+                             squeeze=False)
+    for ax, cond in zip(axes[:, 0], conds):
+        seen = set()
+        for e in results["episodes"]:
+            if e["condition"] != cond or e["modality"] in seen:
+                continue
+            seen.add(e["modality"])
+            tr = np.array([np.nan if v is None else v for v in e["trace_error_px"]], float)
+            ax.plot(np.arange(tr.size), tr, lw=1, label=f"{e['modality']} (seed {e['seed']})")
+        ax.set_title(f"{cond}: centroid error (px); gaps: target out of view", fontsize=9)
+        ax.set_xlabel("control tick")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_latency(results: dict, path: Path) -> None:
+    """Histogram of per-call inference latency per modality."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    by_mod: dict[str, list] = {}
+    for e in results["episodes"]:
+        by_mod.setdefault(e["modality"], []).extend(e.get("inference_ms") or [])
+    for mod, vals in by_mod.items():
+        if vals:
+            v = np.asarray(vals)
+            ax.hist(v, bins=40, alpha=0.6,
+                    label=f"{mod}: p50 {np.median(v):.2f} ms, p99 {np.percentile(v, 99):.2f}")
+    ax.set_xlabel("inference latency per call (ms)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
