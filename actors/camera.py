@@ -7,7 +7,8 @@ Input  `state`  from the sim (use the default queue, not "latest", in lockstep: 
 Outputs, each rendered only when some actor consumes it (self.consumed):
   rgb    {"rgb": (H, W, 3) uint8} at rgb_hz (0: one per control tick), motion-blurred over
          the scene's rgb_blur sub-frames when set. meta: episode, control, t_ep, truth.
-  luma   {"luma": (H, W) uint8} at dvs_hz (0: every state sample), never blurred. meta:
+  luma   {"luma": (H, W) uint8} at dvs_hz (0: every state sample) and on every control
+         sample, never blurred. meta:
          episode, control (True on the sample of a control tick), t_ep. tick = the sim's.
   depth  {"depth": (H, W) float32, m} and seg {"seg": (H, W, 2) int32 [id, mjtObj type]}
          at the RGB times.
@@ -60,6 +61,8 @@ class Camera(Actor):
         self.key = None            # (scene name, config) of the compiled model
         self.renderer: FrameRenderer | None = None
         self.episode = None
+        self.last_t: float | None = None
+        self.warned_rate = False
         self.counts = {"rgb": 0, "luma": 0, "depth": 0, "seg": 0, "no_model": 0}
         self.wanted = {o for o in self.outputs if o in self.consumed}
         self.log.info("camera: rendering %s", sorted(self.wanted) or "nothing")
@@ -100,7 +103,16 @@ class Camera(Actor):
             self.episode = ep
             self.rgb_rate, self.luma_rate = _Rate(self.params.rgb_hz), _Rate(self.params.dvs_hz)
             self.history.clear()
-        want_luma = "luma" in self.wanted and self.luma_rate.due(t_ep)
+            self.last_t = None
+        # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
+        # that flag to the accumulator, which closes its windows on it.
+        want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
+        if self.last_t is not None and self.params.dvs_hz > 0 and not self.warned_rate \
+                and t_ep - self.last_t > 1.5 / self.params.dvs_hz:
+            self.warned_rate = True
+            self.log.warning("states arrive every %.4f s, slower than dvs_hz %g: raise the "
+                             "sim's render_hz", t_ep - self.last_t, self.params.dvs_hz)
+        self.last_t = t_ep
         rgb_due = control if self.params.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
         want_rgb = "rgb" in self.wanted and rgb_due
         if self.blur > 1 and "rgb" in self.wanted:

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from actors.camera import Camera
 from actors.sim import Sim, episode_seed
 from sebvs.runtime import Message
 from sebvs.runtime.supervisor import run_topology
@@ -22,8 +23,17 @@ class FakeNode:
         self.emitted, self.events, self.finished = [], [], None
 
     def emit(self, output, arrays, *, meta=None, t_sim=None, tick=None, parent=None):
+        if parent is not None:       # what the real node carries on from the parent
+            t_sim = parent.t_sim if t_sim is None else t_sim
+            tick = parent.tick if tick is None else tick
+            meta = parent.meta if meta is None else meta
         self.emitted.append((output, {k: np.array(v) for k, v in (arrays or {}).items()},
                              meta, t_sim, tick))
+
+    def reserve(self, output, specs):
+        arrays = {n: np.empty(shape, dt) for n, (shape, dt) in specs.items()}
+        self.reserved = arrays
+        return arrays
 
     def event(self, kind, fields):
         self.events.append((kind, fields))
@@ -94,6 +104,41 @@ def test_bad_commands_rejected_last_good_kept():
         np.testing.assert_array_equal(sim.data.ctrl, good)
     assert sim.counts["rejected"] == 3
     assert [k for k, _ in node.events].count("command_rejected") == 3
+
+
+def test_camera_renders_consumed_outputs_and_luma_on_every_control_sample():
+    sim, sim_node = make_sim(config={"width": 48, "height": 32, "rgb_blur": 3},
+                             episodes=2, episode_s=0.3)
+    asyncio.run(sim.run())
+    node = FakeNode()
+    cam = Camera("camera", Camera.Params(dvs_hz=30.0), seed=0, clock="lockstep",
+                 consumed=frozenset({"rgb", "luma", "seg"}), node=node)
+
+    async def feed():
+        await cam.setup()
+        for i, (out, arrays, meta, t_sim, tick) in enumerate(sim_node.emitted):
+            if out == "state":
+                await cam.on_state(Message(topic="sim/state", source="sim", output="state",
+                                           seq=i, t_sim=t_sim, tick=tick, stamps=[],
+                                           meta=meta, arrays=arrays))
+        await cam.teardown()
+
+    asyncio.run(feed())
+    states = [m for o, _, m, *_ in sim_node.emitted if o == "state"]
+    controls = [m for m in states if m["control"]]
+    by = {o: [(a, m, k) for oo, a, m, _, k in node.emitted if oo == o]
+          for o in ("rgb", "luma", "seg", "depth")}
+    assert not by["depth"]                                  # not consumed: never rendered
+    assert len(by["rgb"]) == len(by["seg"]) == len(controls) == 14
+    luma_ctrl = [(m["t_ep"], k) for _, m, k in by["luma"] if m["control"]]
+    assert luma_ctrl == [(m["t_ep"], i) for i, m in enumerate(controls)]
+    assert len(by["luma"]) > len(controls)                  # plus the 30 Hz samples
+    a, m, _ = by["rgb"][3]
+    assert a["rgb"].shape == (32, 48, 3) and a["rgb"].std() > 3
+    assert m["truth"]["image"] == [48, 32] and m["episode"] == 0
+    assert by["luma"][0][0]["luma"].shape == (32, 48)
+    assert by["seg"][0][0]["seg"].shape == (32, 48, 2)
+    assert cam.counts["no_model"] == 0
 
 
 def test_bad_rates_are_refused():
