@@ -1,0 +1,324 @@
+"""One HDF5 file per episode: writer (crash-safe) and lazy reader.
+
+Layout of ``episode_NNNN.h5`` (T frames, one row per control tick):
+
+    rgb            [T, H, W, 3]  uint8    camera image
+    events/frame   [T, 2, H, W]  uint8    ON/OFF event counts accumulated over the tick
+    events/x,y     [N]           uint16   raw events (optional), all frames concatenated
+    events/t       [N]           int64    timestamps, ns
+    events/p       [N]           int8     polarity +1/-1
+    events/offset  [T + 1]       int64    events of frame k are [offset[k], offset[k+1])
+    action         [T, 2]        float32  nav command [v, w] in [-1, 1]     (task "nav")
+    pose           [T, 6]        float32  arm pre-grasp pose [x,y,z,r,p,y]  (task "arm")
+    t_sim          [T]           float64  simulation time of the observation, s
+    tick           [T]           int64    control tick index
+    latency/<hop>  [T]           float32  per-frame hop latency, microseconds (NaN: not seen)
+    truth/<name>   [T, ...]      float    privileged ground truth (NaN: not given that frame)
+    modality       [T]           S16      input modality of a driving policy (optional)
+
+Attributes: task, scene, conditions (JSON), seed, topology (JSON), emulator (JSON),
+event_scale, event_offset, version, end_reason, frames, plus any extra scalar or JSON
+value the caller passes.
+
+Crash safety: the writer works on ``<path>.partial`` and renames it to ``<path>`` only in
+``finish``, after flushing and fsyncing, so a file with the final name is always complete.
+A ``.partial`` left behind by a crash is a lost in-progress episode (``sebvs data check``
+reports it; readers never list it).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+import sebvs
+
+TASK_TARGET = {"nav": ("action", 2), "arm": ("pose", 6)}
+PARTIAL = ".partial"
+# attributes stored as JSON text (dicts/lists); decoded by Episode.attrs
+JSON_ATTRS = ("conditions", "topology", "emulator")
+REQUIRED_ATTRS = ("task", "scene", "conditions", "seed", "topology", "emulator",
+                  "event_scale", "event_offset", "version", "end_reason", "frames")
+COMPRESSIONS = ("none", "lzf", "gzip")
+MODALITY_DTYPE = "S16"
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename durable (the directory entry), where the OS allows it."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _attr_value(key: str, value: Any) -> Any:
+    """h5py accepts scalars and strings; dicts and lists go as JSON text."""
+    if key in JSON_ATTRS or isinstance(value, (dict, list, tuple)):
+        return json.dumps(value if value is not None else {}, sort_keys=True, default=str)
+    if value is None:
+        return ""
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+class EpisodeWriter:
+    """Appends frames to ``<path>.partial``; ``finish`` renames it to ``path``.
+
+    Args:
+        path: final file name (e.g. ``datasets/nav/episode_0003.h5``).
+        task: "nav" (target ``action`` [2]) or "arm" (target ``pose`` [6]).
+        attrs: file attributes (scene, conditions, seed, topology, emulator, event_scale,
+            event_offset, ...). Missing required ones are written empty so every file has
+            the same keys; ``version`` and ``task`` are filled in here.
+        compression: "lzf" (default: fast, pays on rendered images and sparse event
+            frames), "gzip" (smaller, slower) or "none".
+    Datasets are created on the first ``append`` (shapes come from the data), chunked one
+    frame per chunk along T so a reader of one frame decompresses one frame.
+    """
+
+    GROW = 64   # rows added per resize: fewer HDF5 metadata updates than one per frame
+
+    def __init__(self, path: str | Path, task: str, attrs: dict | None = None,
+                 compression: str = "lzf"):
+        if task not in TASK_TARGET:
+            raise ValueError(f"unknown task {task!r} (nav, arm)")
+        if compression not in COMPRESSIONS:
+            raise ValueError(f"unknown compression {compression!r} ({', '.join(COMPRESSIONS)})")
+        self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + PARTIAL)
+        self.task = task
+        self.target_key, self.target_dim = TASK_TARGET[task]
+        self.compression = None if compression == "none" else compression
+        self.frames = 0
+        self.raw_count = 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.f = h5py.File(self.partial, "w")
+        attrs = dict(attrs or {})
+        attrs["task"] = task
+        attrs["version"] = sebvs.__version__
+        attrs.setdefault("end_reason", "")
+        for key in REQUIRED_ATTRS:
+            attrs.setdefault(key, {} if key in JSON_ATTRS else ("" if key != "frames" else 0))
+        json_keys = [k for k, v in attrs.items()
+                     if k in JSON_ATTRS or isinstance(v, (dict, list, tuple))]
+        for key, value in attrs.items():
+            self.f.attrs[key] = _attr_value(key, value)
+        # which attributes are JSON text, so the reader decodes exactly those
+        self.f.attrs["json_keys"] = json.dumps(sorted(json_keys))
+        self._ds: dict[str, h5py.Dataset] = {}
+        self._cap = 0
+
+    # --- datasets grown along T ---------------------------------------------------
+    def _create(self, name: str, row_shape: tuple, dtype, fill=None, compress=True):
+        kw = {}
+        if compress and self.compression is not None:
+            kw["compression"] = self.compression
+        ds = self.f.create_dataset(name, shape=(self._cap,) + tuple(row_shape),
+                                   maxshape=(None,) + tuple(row_shape), dtype=dtype,
+                                   chunks=(1,) + tuple(row_shape) if row_shape
+                                   else (1024,), fillvalue=fill, **kw)
+        self._ds[name] = ds
+        return ds
+
+    def _grow(self) -> None:
+        if self.frames < self._cap:
+            return
+        self._cap += self.GROW
+        for ds in self._ds.values():
+            ds.resize(self._cap, axis=0)
+
+    def append(self, *, rgb: np.ndarray, t_sim: float, tick: int,
+               event_frame: np.ndarray | None = None, action: np.ndarray | None = None,
+               pose: np.ndarray | None = None, latency: dict[str, float] | None = None,
+               truth: dict[str, Any] | None = None, modality: str | None = None,
+               raw_events: dict[str, np.ndarray] | None = None) -> int:
+        """Write one frame; returns its row index.
+
+        rgb [H, W, 3] uint8; event_frame [2, H', W'] counts (clipped to 0..255);
+        action [2] (nav) or pose [6] (arm) float; latency {hop: microseconds};
+        truth {name: scalar or array}; raw_events {"x", "y", "t", "p"} equal-length 1-D.
+        A stream present in one frame must be present in every frame (except latency,
+        truth and modality, which are NaN/empty where absent).
+        """
+        target = action if self.task == "nav" else pose
+        if target is None:
+            raise ValueError(f"task {self.task!r} needs {self.target_key}=")
+        target = np.asarray(target, np.float32).reshape(-1)
+        if target.shape != (self.target_dim,):
+            raise ValueError(f"{self.target_key} must have {self.target_dim} values, "
+                             f"got shape {target.shape}")
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise ValueError(f"rgb must be [H, W, 3], got {rgb.shape}")
+        if self.frames == 0:
+            self._create("rgb", rgb.shape, np.uint8)
+            if event_frame is not None:
+                self._create("events/frame", np.shape(event_frame), np.uint8)
+            self._create(self.target_key, (self.target_dim,), np.float32, compress=False)
+            self._create("t_sim", (), np.float64, compress=False)
+            self._create("tick", (), np.int64, compress=False)
+            if raw_events is not None:
+                self._raw_init()
+        self._grow()
+        i = self.frames
+        self._ds["rgb"][i] = rgb
+        ev = self._ds.get("events/frame")
+        if (ev is None) != (event_frame is None):
+            raise ValueError("event_frame must be given in every frame or in none")
+        if ev is not None:
+            event_frame = np.asarray(event_frame)
+            if event_frame.dtype != np.uint8:
+                event_frame = np.clip(event_frame, 0, 255).astype(np.uint8)
+            ev[i] = event_frame
+        self._ds[self.target_key][i] = target
+        self._ds["t_sim"][i] = float(t_sim)
+        self._ds["tick"][i] = int(tick)
+        for hop, us in (latency or {}).items():
+            name = "latency/" + hop.replace("/", "|")
+            ds = self._ds.get(name)
+            if ds is None:
+                ds = self._create(name, (), np.float32, fill=np.nan, compress=False)
+            ds[i] = float(us)
+        for key, value in (truth or {}).items():
+            value = np.asarray(value, np.float64)
+            name = "truth/" + key.replace("/", "|")
+            ds = self._ds.get(name)
+            if ds is None:
+                ds = self._create(name, value.shape, np.float64, fill=np.nan, compress=False)
+            ds[i] = value
+        if modality is not None:
+            ds = self._ds.get("modality")
+            if ds is None:
+                ds = self._create("modality", (), MODALITY_DTYPE, compress=False)
+            ds[i] = str(modality).encode()[:16]
+        if raw_events is not None or "events/x" in self.f:
+            self._raw_append(raw_events)
+        self.frames += 1
+        return i
+
+    # --- raw events: 1-D, variable length per frame -----------------------------------
+    def _raw_init(self) -> None:
+        kw = {"compression": self.compression} if self.compression else {}
+        for key, dtype in (("x", np.uint16), ("y", np.uint16), ("t", np.int64), ("p", np.int8)):
+            self.f.create_dataset(f"events/{key}", shape=(0,), maxshape=(None,), dtype=dtype,
+                                  chunks=(65536,), **kw)
+        self.f.create_dataset("events/offset", shape=(1,), maxshape=(None,), dtype=np.int64,
+                              chunks=(1024,), data=[0])
+
+    def _raw_append(self, raw: dict[str, np.ndarray] | None) -> None:
+        if "events/x" not in self.f:
+            raise ValueError("raw_events must be given from the first frame on")
+        n = 0 if raw is None else len(raw["x"])
+        if n:
+            for key in ("x", "y", "t", "p"):
+                ds = self.f[f"events/{key}"]
+                ds.resize(self.raw_count + n, axis=0)
+                ds[self.raw_count:] = np.asarray(raw[key]).astype(ds.dtype, copy=False)
+        self.raw_count += n
+        off = self.f["events/offset"]
+        off.resize(self.frames + 2, axis=0)
+        off[self.frames + 1] = self.raw_count
+
+    # --- ending -------------------------------------------------------------------------
+    def finish(self, reason: str = "") -> Path:
+        """Trim, flush, fsync, close and rename to the final name; returns it."""
+        for ds in self._ds.values():
+            ds.resize(self.frames, axis=0)
+        self.f.attrs["end_reason"] = reason
+        self.f.attrs["frames"] = self.frames
+        self.f.flush()
+        self.f.close()
+        # fsync the bytes before the rename, so the final name never points at a torn file
+        fd = os.open(self.partial, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(self.partial, self.path)
+        _fsync_dir(self.path.parent)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the episode: close and delete the partial file."""
+        try:
+            self.f.close()
+        finally:
+            self.partial.unlink(missing_ok=True)
+
+    def __enter__(self) -> "EpisodeWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and self.f.id.valid:
+            self.abort()
+
+
+class Episode:
+    """A finished episode opened read-only; arrays are lazy h5py datasets (index to read).
+
+    ``rgb`` [T, H, W, 3], ``event_frame`` [T, 2, H, W] or None, ``target`` (``action``
+    [T, 2] or ``pose`` [T, 6]), ``t_sim`` [T], ``tick`` [T], ``latency`` {hop: [T]},
+    ``truth`` {name: [T, ...]}, ``modality`` [T] or None, ``raw_events`` (x, y, t, p,
+    offset datasets) or None; ``attrs`` is a plain dict with JSON attributes decoded.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.file = h5py.File(self.path, "r")
+        f = self.file
+        self.attrs = {}
+        raw_keys = f.attrs.get("json_keys", "[]")
+        json_keys = set(json.loads(raw_keys.decode() if isinstance(raw_keys, bytes)
+                                   else raw_keys)) | set(JSON_ATTRS)
+        for k, v in f.attrs.items():
+            if k == "json_keys":
+                continue
+            if isinstance(v, bytes):
+                v = v.decode()
+            if isinstance(v, np.generic):
+                v = v.item()
+            if k in json_keys and isinstance(v, str):
+                v = json.loads(v) if v else {}
+            self.attrs[k] = v
+        self.task = self.attrs.get("task", "nav" if "action" in f else "arm")
+        self.target_key = TASK_TARGET[self.task][0]
+        self.rgb = f["rgb"]
+        self.event_frame = f["events/frame"] if "events/frame" in f else None
+        self.target = f[self.target_key]
+        self.action = f["action"] if "action" in f else None
+        self.pose = f["pose"] if "pose" in f else None
+        self.t_sim = f["t_sim"]
+        self.tick = f["tick"]
+        self.latency = {k: v for k, v in f["latency"].items()} if "latency" in f else {}
+        self.truth = {k: v for k, v in f["truth"].items()} if "truth" in f else {}
+        self.modality = f["modality"] if "modality" in f else None
+        self.raw_events = ({k: f[f"events/{k}"] for k in ("x", "y", "t", "p", "offset")}
+                           if "events/x" in f else None)
+
+    def __len__(self) -> int:
+        return int(self.rgb.shape[0])
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __enter__(self) -> "Episode":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_episode(path: str | Path) -> Episode:
+    """Open a finished episode file (use as a context manager)."""
+    return Episode(path)

@@ -1,0 +1,107 @@
+"""The dataset index: ``index.json`` beside the episode files.
+
+    {"version": 1, "task": "nav",
+     "episodes": [{"file": "episode_0000.h5", "frames": 412, "seed": 7,
+                   "conditions": {...}, "sha256": "...", "bytes": 123456,
+                   "reason": "timeout"}, ...]}
+
+The index is the list of episodes a dataset *has*: an episode file is renamed into place
+first and added here last, by writing a temporary file and ``os.replace`` (atomic on
+POSIX), so a crash at any moment leaves either the old or the new index, never a torn one.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+
+INDEX = "index.json"
+INDEX_VERSION = 1
+EPISODE_RE = re.compile(r"^episode_(\d+)\.h5(\.partial)?$")
+
+
+def episode_name(number: int) -> str:
+    return f"episode_{number:04d}.h5"
+
+
+def file_sha256(path: str | Path, block: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(block):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """tmp file in the same directory, fsync, os.replace: readers see old or new, whole."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=1, default=str)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def make_entry(path: str | Path, reason: str | None = None) -> dict:
+    """An index entry for a finished episode file (reads its attributes, hashes it)."""
+    from .episode import open_episode
+    path = Path(path)
+    with open_episode(path) as ep:
+        attrs, frames = ep.attrs, len(ep)
+    return {"file": path.name, "frames": frames, "seed": attrs.get("seed"),
+            "conditions": attrs.get("conditions", {}), "sha256": file_sha256(path),
+            "bytes": path.stat().st_size,
+            "reason": attrs.get("end_reason", "") if reason is None else reason}
+
+
+class DatasetIndex:
+    """``index.json`` of dataset directory ``root`` (created on the first ``add``)."""
+
+    def __init__(self, root: str | Path, task: str | None = None):
+        self.root = Path(root)
+        self.path = self.root / INDEX
+        if self.path.exists():
+            self.data = json.loads(self.path.read_text())
+            if task is not None and self.data.get("task") not in (None, task):
+                raise ValueError(f"{self.root}: dataset holds task {self.data['task']!r}, "
+                                 f"not {task!r}")
+        else:
+            self.data = {"version": INDEX_VERSION, "task": task, "episodes": []}
+        if task is not None:
+            self.data["task"] = task
+
+    @property
+    def task(self) -> str | None:
+        return self.data.get("task")
+
+    def episodes(self) -> list[dict]:
+        return list(self.data["episodes"])
+
+    def episode_paths(self) -> list[Path]:
+        return [self.root / e["file"] for e in self.data["episodes"]]
+
+    def add(self, entry: dict) -> None:
+        """Append one episode entry and rewrite the index atomically."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if any(e["file"] == entry["file"] for e in self.data["episodes"]):
+            raise ValueError(f"{entry['file']} is already in {self.path}")
+        self.data["episodes"].append(dict(entry))
+        write_json_atomic(self.path, self.data)
+
+    def next_episode_number(self) -> int:
+        """One past the highest number in the index or on disk (``.partial`` files included,
+        so a lost episode's file is never overwritten by a new recording)."""
+        numbers = [-1]
+        names = [e["file"] for e in self.data["episodes"]]
+        if self.root.is_dir():
+            names += [p.name for p in self.root.iterdir()]
+        for name in names:
+            m = EPISODE_RE.match(name)
+            if m:
+                numbers.append(int(m.group(1)))
+        return max(numbers) + 1
+
+    def path_for(self, number: int) -> Path:
+        return self.root / episode_name(number)
