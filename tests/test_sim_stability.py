@@ -93,6 +93,11 @@ CASES = {
                             lambda i: np.array([1.0, (-1.0) ** (i // 25)])),
     "commands +-1e6": ({}, lambda i: np.array([1e6, -1e6]) * (-1) ** (i // 25)),
     "into the wall at 0.01": ({"timestep": 0.01, "arena": 3.0}, lambda i: np.array([1.0, 0.0])),
+    # solref time constant 0.002 s < 2 x timestep 0.002, refsafe off
+    "stiff wall contact": ({"contact_timeconst": 0.002, "arena": 3.0},
+                           lambda i: np.array([1.0, 0.3 * (-1) ** (i // 50)])),
+    "stiff wall contact at 0.01": ({"contact_timeconst": 0.002, "arena": 3.0, "timestep": 0.01},
+                                   lambda i: np.array([1.0, 0.3 * (-1) ** (i // 50)])),
 }
 
 
@@ -124,3 +129,16 @@ def test_nan_command_rejected_and_last_good_kept(integrator):
         np.testing.assert_array_equal(data.ctrl, good)
     why, _ = run(scene, model, data, mon, 0.5)
     assert why is None and np.isfinite(data.qpos).all()
+
+
+def test_stiff_contact_diverges_except_under_discrete():
+    """DESIGN.md 5 on this robot: a wall contact with time constant 0.002 s at timestep
+    0.01 (refsafe off) blows up under euler and implicitfast, and the monitor says so; the
+    discrete integrator stays stable (MuJoCo 4.0)."""
+    config, commands = CASES["stiff wall contact at 0.01"]
+    for integrator, diverges in (("euler", True), ("implicitfast", True), ("discrete", False)):
+        scene, model, data, mon = setup(integrator=integrator, **config)
+        why, _ = run(scene, model, data, mon, 3.0, commands)
+        assert (why is not None) == diverges, (integrator, why)
+        if diverges:
+            assert "speed" in why

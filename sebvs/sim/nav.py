@@ -55,6 +55,9 @@ class NavScene(Scene):
     v_max, w_max  float m/s (1.5), rad/s (2.0): command scale
     servo_gain    float multiplier on the drive servos' gains (1.0; large = stiff servo)
     arena         float half size of the room / target area, m (6.0)
+    contact_timeconst  float s (0.0 = MuJoCo's default 0.02): contact solref time constant;
+                  set, MuJoCo's refsafe clamp (>= 2 timesteps) is disabled too, so stiff
+                  contacts (the issue's stiff case) are really that stiff
     plus integrator, timestep, shadows (Scene).
     """
 
@@ -64,7 +67,7 @@ class NavScene(Scene):
     defaults = {**Scene.defaults, "variant": "indoor", "target_speed": "nominal",
                 "lighting": "nominal", "flicker_hz": 10.0, "rgb_blur": 0, "width": 160,
                 "height": 160, "fovy": 70.0, "v_max": 1.5, "w_max": 2.0, "servo_gain": 1.0,
-                "arena": 6.0}
+                "arena": 6.0, "contact_timeconst": 0.0}
 
     def validate(self) -> None:
         c = self.config
@@ -83,6 +86,9 @@ class NavScene(Scene):
             raise ValueError(f"nav scene: rgb_blur must be an int in [0, 64], got {c['rgb_blur']!r}")
         if not 1 <= c["fovy"] < 180:
             raise ValueError(f"nav scene: fovy {c['fovy']!r} must be in [1, 180) degrees")
+        tc = c["contact_timeconst"]
+        if isinstance(tc, bool) or not isinstance(tc, (int, float)) or tc < 0:
+            raise ValueError(f"nav scene: contact_timeconst must be >= 0, got {tc!r}")
         if c["arena"] < 2.0:
             raise ValueError("nav scene: arena must be >= 2 m")
 
@@ -144,10 +150,14 @@ class NavScene(Scene):
             for i, (x, y) in enumerate(((0.17, 0.23), (0.17, -0.23), (-0.17, 0.23),
                                         (-0.17, -0.23))))
         w, h = int(c["width"]), int(c["height"])
+        tc = float(c["contact_timeconst"])
+        contact_flag = '<flag refsafe="disable"/>' if tc > 0 else ""
+        contact_solref = f'solref="{tc} 1"' if tc > 0 else ""
         return f"""<mujoco model="sebvs_nav_{c['variant']}">
   <compiler angle="radian"/>
-  <option timestep="0.002" integrator="implicitfast"/>
+  <option timestep="0.002" integrator="implicitfast">{contact_flag}</option>
   {FAST_VISUAL}
+  <default><geom {contact_solref}/></default>
   <visual>
     <global offwidth="{max(w, 640)}" offheight="{max(h, 640)}"/>
     <headlight ambient="{amb} {amb} {amb}" diffuse="0 0 0" specular="0 0 0"/>
