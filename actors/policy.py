@@ -31,7 +31,7 @@ class Policy(Actor):
         task: str = "nav"            # ... for this task
         modalities: list[str] = field(default_factory=list)   # ... these (default: all three)
         modality: str = "rgb+event"  # the active one
-        threads: int = 1             # torch.set_num_threads
+        threads: int = 1             # torch and OpenCV threads
 
     async def setup(self) -> None:
         from sebvs.policy.infer import PolicySet, TickSync, resolve_checkpoints
