@@ -111,7 +111,7 @@ def test_camera_renders_consumed_outputs_and_luma_on_every_control_sample():
                              episodes=2, episode_s=0.3)
     asyncio.run(sim.run())
     node = FakeNode()
-    cam = Camera("camera", Camera.Params(dvs_hz=30.0), seed=0, clock="lockstep",
+    cam = Camera("camera", Camera.Params(dvs_hz=30.0, luma_scale=0.5), seed=0, clock="lockstep",
                  consumed=frozenset({"rgb", "luma", "seg"}), node=node)
 
     async def feed():
@@ -136,7 +136,8 @@ def test_camera_renders_consumed_outputs_and_luma_on_every_control_sample():
     a, m, _ = by["rgb"][3]
     assert a["rgb"].shape == (32, 48, 3) and a["rgb"].std() > 3
     assert m["truth"]["image"] == [48, 32] and m["episode"] == 0
-    assert by["luma"][0][0]["luma"].shape == (32, 48)
+    assert by["luma"][0][0]["luma"].shape == (16, 24)        # luma_scale 0.5
+    assert by["luma"][0][0]["luma"].std() > 3
     assert by["seg"][0][0]["seg"].shape == (32, 48, 2)
     assert cam.counts["no_model"] == 0
 

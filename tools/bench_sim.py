@@ -168,6 +168,7 @@ def main() -> int:
             notes.append(f"physics {name}: {type(exc).__name__}: {exc}")
     jobs = [("nav", {"variant": "indoor"}, "front", 160, ["rgb", "luma", "depth", "seg"]),
             ("nav", {"variant": "outdoor"}, "front", 160, ["rgb"]),
+            ("nav", {"variant": "indoor"}, "front", 80, ["luma"]),   # camera luma_scale 0.5
             ("nav", {"variant": "indoor"}, "front", 320, ["rgb"])]
     if not args.quick:
         jobs.append(("nav", {"variant": "indoor"}, "front", 640, ["rgb"]))
