@@ -107,36 +107,42 @@ class EpisodeWriter:
         attrs = dict(attrs or {})
         attrs["task"] = task
         attrs["version"] = sebvs.__version__
-        attrs.setdefault("end_reason", "")
         for key in REQUIRED_ATTRS:
             attrs.setdefault(key, {} if key in JSON_ATTRS else ("" if key != "frames" else 0))
-        json_keys = [k for k, v in attrs.items()
-                     if k in JSON_ATTRS or isinstance(v, (dict, list, tuple))]
+        self._json_keys: set[str] = set()
+        self.set_attrs(attrs)
+        self._big: dict[str, h5py.Dataset] = {}   # per-frame images, written as they come
+        self._cap = 0
+        # small per-frame columns stay in memory and are written by finish(): one HDF5
+        # write per column instead of one per frame (a lost .partial loses them anyway)
+        self._target: list = []
+        self._t_sim: list = []
+        self._tick: list = []
+        self._latency: dict[str, dict[int, float]] = {}
+        self._truth: dict[str, dict[int, np.ndarray]] = {}
+        self._modality: dict[int, bytes] = {}
+
+    def set_attrs(self, attrs: dict) -> None:
+        """Set or update file attributes (dicts and lists are stored as JSON text)."""
         for key, value in attrs.items():
+            if key in JSON_ATTRS or isinstance(value, (dict, list, tuple)):
+                self._json_keys.add(key)
             self.f.attrs[key] = _attr_value(key, value)
         # which attributes are JSON text, so the reader decodes exactly those
-        self.f.attrs["json_keys"] = json.dumps(sorted(json_keys))
-        self._ds: dict[str, h5py.Dataset] = {}
-        self._cap = 0
+        self.f.attrs["json_keys"] = json.dumps(sorted(self._json_keys))
 
-    # --- datasets grown along T ---------------------------------------------------
-    def _create(self, name: str, row_shape: tuple, dtype, fill=None, compress=True):
-        kw = {}
-        if compress and self.compression is not None:
-            kw["compression"] = self.compression
-        ds = self.f.create_dataset(name, shape=(self._cap,) + tuple(row_shape),
-                                   maxshape=(None,) + tuple(row_shape), dtype=dtype,
-                                   chunks=(1,) + tuple(row_shape) if row_shape
-                                   else (1024,), fillvalue=fill, **kw)
-        self._ds[name] = ds
+    @property
+    def sim_seconds(self) -> float:
+        """Simulated time spanned by the frames so far (last t_sim - first)."""
+        return self._t_sim[-1] - self._t_sim[0] if self._t_sim else 0.0
+
+    def _create_big(self, name: str, row_shape: tuple) -> h5py.Dataset:
+        kw = {"compression": self.compression} if self.compression else {}
+        ds = self.f.create_dataset(name, shape=(0,) + tuple(row_shape),
+                                   maxshape=(None,) + tuple(row_shape), dtype=np.uint8,
+                                   chunks=(1,) + tuple(row_shape), **kw)
+        self._big[name] = ds
         return ds
-
-    def _grow(self) -> None:
-        if self.frames < self._cap:
-            return
-        self._cap += self.GROW
-        for ds in self._ds.values():
-            ds.resize(self._cap, axis=0)
 
     def append(self, *, rgb: np.ndarray, t_sim: float, tick: int,
                event_frame: np.ndarray | None = None, action: np.ndarray | None = None,
@@ -147,9 +153,9 @@ class EpisodeWriter:
 
         rgb [H, W, 3] uint8; event_frame [2, H', W'] counts (clipped to 0..255);
         action [2] (nav) or pose [6] (arm) float; latency {hop: microseconds};
-        truth {name: scalar or array}; raw_events {"x", "y", "t", "p"} equal-length 1-D.
-        A stream present in one frame must be present in every frame (except latency,
-        truth and modality, which are NaN/empty where absent).
+        truth {name: number or array, same shape every frame}; raw_events {"x", "y",
+        "t", "p"} equal-length 1-D. rgb, event_frame and raw_events must be given in every
+        frame or in none; latency, truth and modality may be missing (NaN / empty there).
         """
         target = action if self.task == "nav" else pose
         if target is None:
@@ -159,51 +165,43 @@ class EpisodeWriter:
             raise ValueError(f"{self.target_key} must have {self.target_dim} values, "
                              f"got shape {target.shape}")
         rgb = np.asarray(rgb)
-        if rgb.ndim != 3 or rgb.shape[2] != 3:
-            raise ValueError(f"rgb must be [H, W, 3], got {rgb.shape}")
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {rgb.shape}")
         if self.frames == 0:
-            self._create("rgb", rgb.shape, np.uint8)
+            self._create_big("rgb", rgb.shape)
             if event_frame is not None:
-                self._create("events/frame", np.shape(event_frame), np.uint8)
-            self._create(self.target_key, (self.target_dim,), np.float32, compress=False)
-            self._create("t_sim", (), np.float64, compress=False)
-            self._create("tick", (), np.int64, compress=False)
+                self._create_big("events/frame", np.shape(event_frame))
             if raw_events is not None:
                 self._raw_init()
-        self._grow()
-        i = self.frames
-        self._ds["rgb"][i] = rgb
-        ev = self._ds.get("events/frame")
+        ev = self._big.get("events/frame")
         if (ev is None) != (event_frame is None):
             raise ValueError("event_frame must be given in every frame or in none")
+        if self.frames >= self._cap:
+            self._cap += self.GROW
+            for ds in self._big.values():
+                ds.resize(self._cap, axis=0)
+        i = self.frames
+        self._big["rgb"][i] = rgb
         if ev is not None:
             event_frame = np.asarray(event_frame)
             if event_frame.dtype != np.uint8:
                 event_frame = np.clip(event_frame, 0, 255).astype(np.uint8)
             ev[i] = event_frame
-        self._ds[self.target_key][i] = target
-        self._ds["t_sim"][i] = float(t_sim)
-        self._ds["tick"][i] = int(tick)
-        for hop, us in (latency or {}).items():
-            name = "latency/" + hop.replace("/", "|")
-            ds = self._ds.get(name)
-            if ds is None:
-                ds = self._create(name, (), np.float32, fill=np.nan, compress=False)
-            ds[i] = float(us)
-        for key, value in (truth or {}).items():
-            value = np.asarray(value, np.float64)
-            name = "truth/" + key.replace("/", "|")
-            ds = self._ds.get(name)
-            if ds is None:
-                ds = self._create(name, value.shape, np.float64, fill=np.nan, compress=False)
-            ds[i] = value
-        if modality is not None:
-            ds = self._ds.get("modality")
-            if ds is None:
-                ds = self._create("modality", (), MODALITY_DTYPE, compress=False)
-            ds[i] = str(modality).encode()[:16]
         if raw_events is not None or "events/x" in self.f:
             self._raw_append(raw_events)
+        self._target.append(target)
+        self._t_sim.append(float(t_sim))
+        self._tick.append(int(tick))
+        for hop, us in (latency or {}).items():
+            self._latency.setdefault(hop, {})[i] = float(us)
+        for key, value in (truth or {}).items():
+            try:
+                value = np.asarray(value, np.float64)
+            except (TypeError, ValueError):
+                continue            # not numeric: not a truth array
+            self._truth.setdefault(key, {})[i] = value
+        if modality is not None:
+            self._modality[i] = str(modality).encode()[:16]
         self.frames += 1
         return i
 
@@ -232,8 +230,9 @@ class EpisodeWriter:
 
     # --- ending -------------------------------------------------------------------------
     def finish(self, reason: str = "") -> Path:
-        """Trim, flush, fsync, close and rename to the final name; returns it."""
-        for ds in self._ds.values():
+        """Write the columns, trim, flush, fsync, close, rename to the final name; returns it."""
+        self._write_columns()
+        for ds in self._big.values():
             ds.resize(self.frames, axis=0)
         self.f.attrs["end_reason"] = reason
         self.f.attrs["frames"] = self.frames
@@ -248,6 +247,29 @@ class EpisodeWriter:
         os.replace(self.partial, self.path)
         _fsync_dir(self.path.parent)
         return self.path
+
+    def _write_columns(self) -> None:
+        n, f = self.frames, self.f
+        f.create_dataset(self.target_key, data=np.asarray(self._target, np.float32)
+                         .reshape(n, self.target_dim))
+        f.create_dataset("t_sim", data=np.asarray(self._t_sim, np.float64).reshape(n))
+        f.create_dataset("tick", data=np.asarray(self._tick, np.int64).reshape(n))
+        for hop, rows in self._latency.items():
+            col = np.full(n, np.nan, np.float32)
+            col[list(rows)] = list(rows.values())
+            f.create_dataset("latency/" + hop.replace("/", "|"), data=col)
+        for key, rows in self._truth.items():
+            shape = next(iter(rows.values())).shape
+            col = np.full((n,) + shape, np.nan, np.float64)
+            for i, v in rows.items():
+                if v.shape == shape:
+                    col[i] = v
+            f.create_dataset("truth/" + key.replace("/", "|"), data=col)
+        if self._modality:
+            col = np.zeros(n, MODALITY_DTYPE)
+            for i, v in self._modality.items():
+                col[i] = v
+            f.create_dataset("modality", data=col)
 
     def abort(self) -> None:
         """Drop the episode: close and delete the partial file."""

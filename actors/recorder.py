@@ -1,0 +1,172 @@
+"""The recorder actor: a tap that writes synchronised episodes to an HDF5 dataset.
+
+Inputs (connect what the topology has; `events` may be absent in RGB-only topologies):
+  rgb      camera: arrays["rgb"] (H, W, 3) uint8, meta control (samples with control=False,
+           between ticks, are skipped), truth (privileged ground truth, kept per frame)
+  events   accumulator: arrays["frame"] (2, H, W) counts; optional raw arrays x, y, t, p;
+           meta event_scale / event_offset / emulator (stored as file attributes)
+  action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
+           meta modality (where a policy drove)
+  episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
+One row per control tick once every connected stream delivered that tick (see
+sebvs.data.recording.TickJoiner); an episode file per sim episode, finished on its end
+marker, then indexed (sebvs.data.index). After `episodes` finished episodes the recorder
+ends the run. A kill loses at most the episode in progress (its .partial file).
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
+from sebvs.runtime import Actor, Message
+
+STREAMS = ("rgb", "events", "action")
+EVENT_ATTRS = ("event_scale", "event_offset", "emulator")
+
+
+class Recorder(Actor):
+    inputs = ("rgb", "events", "action", "episode")
+
+    @dataclass
+    class Params:
+        out: str = "datasets/nav"        # dataset directory (created; numbering resumes)
+        episodes: int = 0                # end the run after this many finished episodes (0: never)
+        raw_events: bool = False         # also store raw events x, y, t, p when sent
+        compression: Literal["lzf", "gzip", "none"] = "lzf"
+        task: Literal["auto", "nav", "arm"] = "auto"   # auto: from the action's array name
+        topology: str = ""               # topology file, stored as an attribute (sebvs record sets it)
+        max_pending: int = 256           # ticks waiting for a stream before they count as lost
+        grace_s: float = 2.0             # wait this long after an end marker for its last rows
+
+    async def setup(self) -> None:
+        p = self.params
+        missing = {"rgb", "action", "episode"} - self.connected
+        if missing:
+            raise ValueError(f"recorder needs inputs {sorted(missing)} connected")
+        self.streams = frozenset(s for s in STREAMS if s in self.connected)
+        self.joiner = TickJoiner(self.streams, p.max_pending)
+        topo = {}
+        if p.topology:
+            try:
+                topo = {"file": p.topology, "content": tomllib.loads(Path(p.topology).read_text())}
+            except (OSError, tomllib.TOMLDecodeError) as exc:
+                topo = {"file": p.topology, "error": str(exc)}
+        self.rec = EpisodeRecorder(p.out, None if p.task == "auto" else p.task,
+                                   compression=p.compression, grace_s=p.grace_s,
+                                   base_attrs={"topology": topo, "streams": sorted(self.streams)})
+        self.skipped = {"no_tick": 0, "not_control": 0}
+        self._warned = 0
+        self.log.info("recording %s into %s (next episode %d)", sorted(self.streams), p.out,
+                      self.rec.next_number)
+
+    async def run(self) -> None:
+        while not self.stopping.is_set():
+            self._finished(self.rec.poll())
+            if not await self.sleep_until(time.monotonic_ns() + 200_000_000):
+                return
+
+    # --- streams -------------------------------------------------------------------
+    def _take(self, stream: str, msg: Message, item: dict) -> None:
+        if msg.tick is None:
+            self.skipped["no_tick"] += 1
+            return
+        item["latency"] = hop_latencies(msg.stamps, msg.recv_ns, self.name)
+        item["t_sim"] = msg.t_sim
+        before = self.joiner.incomplete
+        done = self.joiner.add(stream, msg.tick, item)
+        if self.joiner.incomplete > before and self._warned < 10:
+            self._warned += 1      # a few lines, then only the count (in stats and teardown)
+            self.log.warning("ticks %s never completed (missing a stream); %d so far",
+                             self.joiner.dropped_ticks[-(self.joiner.incomplete - before):],
+                             self.joiner.incomplete)
+        if done is None:
+            return
+        tick, row = done
+        latency = {}
+        for s in STREAMS:
+            if s in row:
+                latency.update(row[s]["latency"])
+        rgb = row["rgb"]
+        fields = {"rgb": rgb["rgb"], "t_sim": rgb["t_sim"] if rgb["t_sim"] is not None
+                  else (row["action"]["t_sim"] or 0.0),
+                  "latency": latency, "truth": rgb.get("truth"),
+                  "modality": row["action"].get("modality"),
+                  row["action"]["key"]: row["action"]["value"]}
+        if "events" in row:
+            fields["event_frame"] = row["events"]["frame"]
+            if row["events"].get("raw") is not None:
+                fields["raw_events"] = row["events"]["raw"]
+            if row["events"]["attrs"]:
+                fields["attrs"] = row["events"]["attrs"]
+        self._finished(self.rec.row(tick, **fields))
+
+    async def on_rgb(self, msg: Message) -> None:
+        if msg.meta.get("control") is False:
+            self.skipped["not_control"] += 1
+            return
+        truth = msg.meta.get("truth")
+        self._take("rgb", msg, {"rgb": np.array(msg.arrays["rgb"]),   # copy out of shm
+                                "truth": truth if isinstance(truth, dict) else None})
+
+    async def on_events(self, msg: Message) -> None:
+        if msg.meta.get("control") is False:
+            self.skipped["not_control"] += 1
+            return
+        raw = None
+        if self.params.raw_events and all(k in msg.arrays for k in "xytp"):
+            raw = {k: np.array(msg.arrays[k]) for k in "xytp"}
+        attrs = {k: msg.meta[k] for k in EVENT_ATTRS if k in msg.meta}
+        self._take("events", msg, {"frame": np.array(msg.arrays["frame"]), "raw": raw,
+                                   "attrs": attrs})
+
+    async def on_action(self, msg: Message) -> None:
+        key = "action" if "action" in msg.arrays else "pose"
+        if key not in msg.arrays:
+            self.log.warning("action message without 'action' or 'pose' array; skipped")
+            return
+        self._take("action", msg, {"key": key, "value": np.array(msg.arrays[key], np.float32),
+                                   "modality": msg.meta.get("modality")})
+
+    async def on_episode(self, msg: Message) -> None:
+        m = msg.meta
+        tick = msg.tick if msg.tick is not None else -1
+        if m.get("event") == "start":
+            self.rec.start(m, tick)
+        elif m.get("event") == "end":
+            self._finished(self.rec.end(str(m.get("reason", "")), tick))
+
+    # --- episodes --------------------------------------------------------------------
+    def _finished(self, entries: list[dict]) -> None:
+        for e in entries:
+            self.telemetry("episode_recorded", file=e["file"], frames=e["frames"],
+                           reason=e["reason"])
+        n = self.params.episodes
+        if entries and n and len(self.rec.finished) >= n and not self.stopping.is_set():
+            self.request_stop(f"{len(self.rec.finished)} episode(s) recorded")
+
+    async def teardown(self) -> None:
+        self._finished(self.rec.close())
+        j = self.joiner
+        self.log.info("recorded %d episode(s), %d frames; ticks incomplete %d (last %s), "
+                      "late %d, outside episodes %d; episodes discarded %d",
+                      len(self.rec.finished), self.rec.frames, j.incomplete, j.dropped_ticks,
+                      j.late, self.rec.outside, self.rec.discarded)
+
+    def stats(self) -> dict:
+        r, j = self.rec, self.joiner
+        cur = r.current
+        return {"episodes": len(r.finished), "target_episodes": self.params.episodes,
+                "frames": r.frames, "frames_in_progress": r.in_progress_frames(),
+                "sim_s": r.sim_s + sum(e.writer.sim_seconds for e in r.open if e.writer),
+                "current_episode": cur.number if cur else None,
+                "incomplete_ticks": j.incomplete, "late": j.late, "pending": len(j.pending),
+                "outside_episodes": r.outside, "discarded": r.discarded,
+                "skipped": dict(self.skipped), "out": self.params.out,
+                "done": bool(self.params.episodes and len(r.finished) >= self.params.episodes)}

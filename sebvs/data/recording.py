@@ -1,0 +1,249 @@
+"""Recording logic, free of the runtime: join streams by tick, route rows to episodes.
+
+The recorder actor (actors/recorder.py) feeds messages in; this module decides what is a
+complete row, which episode it belongs to, and when an episode is finished.
+
+Joining relies on one property of the transport: each stream arrives in tick order
+(ZeroMQ keeps order per connection). So when the row of tick k completes, every stream
+has passed k, and any pending row below k can never complete: it is dropped and counted
+at once instead of waiting for a timeout.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .episode import TASK_TARGET, EpisodeWriter
+from .index import DatasetIndex, make_entry
+
+log = logging.getLogger("sebvs.data.recording")
+
+
+class TickJoiner:
+    """Collects one item per stream per tick; yields a row once every stream delivered.
+
+    ``streams``: names that must all be present (the connected inputs). ``max_pending``
+    bounds memory when a stream stalls: the oldest pending tick is dropped beyond it.
+    Counters: ``incomplete`` (ticks dropped without all streams), ``late`` (an item for a
+    tick already completed or dropped), ``duplicate`` (a second item for one tick/stream).
+    """
+
+    def __init__(self, streams: set[str] | frozenset[str], max_pending: int = 256):
+        if not streams:
+            raise ValueError("nothing to join: no stream given")
+        self.streams = frozenset(streams)
+        self.max_pending = max_pending
+        self.pending: dict[int, dict[str, Any]] = {}
+        self.last_done = -1 << 62          # highest tick completed or dropped
+        self.completed = self.incomplete = self.late = self.duplicate = 0
+        self.dropped_ticks: list[int] = []  # the last few, for the log
+
+    def add(self, stream: str, tick: int, item: Any) -> tuple[int, dict[str, Any]] | None:
+        """Add one item; returns (tick, {stream: item}) when that tick's row completes."""
+        if tick <= self.last_done:
+            self.late += 1
+            return None
+        row = self.pending.setdefault(tick, {})
+        if stream in row:
+            self.duplicate += 1
+        row[stream] = item
+        if len(row) < len(self.streams):
+            if len(self.pending) > self.max_pending:
+                self._drop(min(self.pending))
+            return None
+        del self.pending[tick]
+        for k in [k for k in self.pending if k < tick]:
+            self._drop(k)   # in-order streams: these can no longer complete
+        self.last_done = tick
+        self.completed += 1
+        return tick, row
+
+    def _drop(self, tick: int) -> None:
+        self.pending.pop(tick, None)
+        self.incomplete += 1
+        self.last_done = max(self.last_done, tick)
+        self.dropped_ticks = (self.dropped_ticks + [tick])[-8:]
+
+
+@dataclass
+class OpenEpisode:
+    """An episode between its start marker and its last row."""
+    number: int
+    start_tick: int
+    info: dict
+    writer: EpisodeWriter | None = None      # created on the first row
+    end_tick: int | None = None
+    reason: str = ""
+    ended_at: float = 0.0                    # monotonic s when the end marker came
+    last_tick: int = -1
+    extra_attrs: dict = field(default_factory=dict)
+
+
+class EpisodeRecorder:
+    """Writes rows into per-episode files of dataset ``root`` and indexes them.
+
+    ``start(info, tick)`` / ``end(reason, tick)`` come from the sim's episode markers;
+    ``row(tick, ...)`` from the joiner. An episode is finished (file renamed, index
+    updated last) when its last tick was written, when a later row arrives, or
+    ``grace_s`` after its end marker if the last rows never complete.
+    """
+
+    def __init__(self, root: str | Path, task: str | None = None, *, compression: str = "lzf",
+                 base_attrs: dict | None = None, grace_s: float = 2.0,
+                 max_orphans: int = 32):
+        self.root = Path(root)
+        self.index = DatasetIndex(self.root, task)
+        self.task = task or self.index.task
+        self.compression = compression
+        self.base_attrs = dict(base_attrs or {})
+        self.grace_s = grace_s
+        self.open: list[OpenEpisode] = []
+        self.finished: list[dict] = []             # index entries written by this recorder
+        self.discarded = 0                         # episodes dropped (no rows, no end marker)
+        self.outside = 0                           # rows outside any episode
+        self.frames = 0                            # rows written in finished episodes
+        self.sim_s = 0.0                           # simulated seconds in finished episodes
+        self._next = self.index.next_episode_number()
+        self.orphans: list[tuple[int, dict]] = []  # rows that came before their start marker
+        self.max_orphans = max_orphans
+
+    # --- markers -------------------------------------------------------------------
+    def start(self, info: dict, tick: int) -> None:
+        for ep in [e for e in self.open if e.end_tick is None]:
+            # a start without the previous end: the sim restarted or the marker was lost;
+            # the episode's extent is unknown, so it is not kept
+            log.warning("episode %d: new start before its end marker; discarded", ep.number)
+            self._discard(ep, "no end marker")
+        self.open.append(OpenEpisode(self._next, tick, dict(info)))
+        self._next += 1
+        # rows that beat the start marker here (it travels on its own socket) belong to it
+        orphans, self.orphans = self.orphans, []
+        for t, fields in orphans:
+            if t >= tick:
+                self.row(t, **fields)
+            else:
+                self.outside += 1
+
+    def end(self, reason: str, tick: int) -> list[dict]:
+        """Mark the open episode's end; returns entries of episodes finished now."""
+        ep = next((e for e in reversed(self.open) if e.end_tick is None), None)
+        if ep is None:
+            log.warning("episode end marker (tick %d) without a start; ignored", tick)
+            return []
+        ep.end_tick, ep.reason, ep.ended_at = tick, reason, time.monotonic()
+        if ep.last_tick >= tick:
+            return [self._finish(ep)]
+        return []
+
+    # --- rows ----------------------------------------------------------------------
+    def row(self, tick: int, **fields) -> list[dict]:
+        """Append one joined row (EpisodeWriter.append fields; ``attrs`` sets file attributes).
+
+        Returns entries of episodes finished by this row.
+        """
+        done = []
+        for ep in list(self.open):
+            if ep.end_tick is not None and tick > ep.end_tick:
+                done.append(self._finish(ep))      # later rows: its last ones are lost
+        ep = next((e for e in self.open if e.start_tick <= tick
+                   and (e.end_tick is None or tick <= e.end_tick)), None)
+        if ep is None:
+            if self.open and tick < max(e.start_tick for e in self.open):
+                self.outside += 1                  # before the current episode: stale
+            else:
+                # maybe the next episode's start marker is still in flight: hold a few rows
+                self.orphans.append((tick, fields))
+                if len(self.orphans) > self.max_orphans:
+                    self.orphans.pop(0)
+                    self.outside += 1
+            return [d for d in done if d]
+        attrs = fields.pop("attrs", None) or {}
+        if ep.writer is None:
+            task = self.task or ("nav" if fields.get("action") is not None else "arm")
+            self.task = task
+            info = ep.info
+            a = {**self.base_attrs, "scene": info.get("scene", ""),
+                 "conditions": info.get("conditions", info.get("config", {})),
+                 "seed": info.get("seed", ""), "sim_episode": info.get("episode", "")}
+            ep.writer = EpisodeWriter(self.index.path_for(ep.number), task, a,
+                                      compression=self.compression)
+        if attrs:
+            ep.writer.set_attrs(attrs)
+        ep.writer.append(tick=tick, **fields)
+        ep.last_tick = tick
+        if ep.end_tick is not None and tick >= ep.end_tick:
+            done.append(self._finish(ep))
+        return [d for d in done if d]
+
+    def poll(self) -> list[dict]:
+        """Finish episodes whose end marker is older than grace_s."""
+        now = time.monotonic()
+        return [d for d in (self._finish(e) for e in list(self.open)
+                            if e.end_tick is not None and now - e.ended_at > self.grace_s) if d]
+
+    def close(self) -> list[dict]:
+        """At shutdown: finish ended episodes, discard the one still in progress."""
+        done = [self._finish(e) for e in list(self.open) if e.end_tick is not None]
+        for ep in list(self.open):
+            log.warning("episode %d still in progress at shutdown; discarded", ep.number)
+            self._discard(ep, "run stopped mid-episode")
+        return [d for d in done if d]
+
+    @property
+    def next_number(self) -> int:
+        return self._next
+
+    @property
+    def current(self) -> OpenEpisode | None:
+        return self.open[-1] if self.open else None
+
+    # --- ending ----------------------------------------------------------------------
+    def _finish(self, ep: OpenEpisode) -> dict | None:
+        self.open.remove(ep)
+        if ep.writer is None or ep.writer.frames == 0:
+            self._discard(ep, "no rows", removed=True)
+            return None
+        frames, sim_s = ep.writer.frames, ep.writer.sim_seconds
+        path = ep.writer.finish(ep.reason)
+        entry = make_entry(path, ep.reason)
+        self.index.add(entry)            # last: only a complete, renamed file is indexed
+        self.finished.append(entry)
+        self.frames += frames
+        self.sim_s += sim_s
+        log.info("episode %s: %d frames, %.1f s simulated, %s", path.name, frames, sim_s,
+                 ep.reason)
+        return entry
+
+    def _discard(self, ep: OpenEpisode, why: str, removed: bool = False) -> None:
+        if not removed:
+            self.open.remove(ep)
+        if ep.writer is not None:
+            ep.writer.abort()
+        self.discarded += 1
+        log.info("episode %d discarded: %s", ep.number, why)
+
+    def in_progress_frames(self) -> int:
+        return sum(e.writer.frames for e in self.open if e.writer is not None)
+
+
+TASK_OF_KEY = {key: task for task, (key, _) in TASK_TARGET.items()}
+
+
+def hop_latencies(stamps: list, recv_ns: int, me: str) -> dict[str, float]:
+    """Per-hop transport latencies of one message, microseconds.
+
+    ``stamps``: the message's [actor, recv_ns, send_ns] per hop; ``recv_ns`` when this
+    actor (``me``) got it. Keys "a->b" for each edge, e.g. "sim->camera", "camera->recorder".
+    """
+    out = {}
+    prev = None
+    for actor, recv, send in stamps:
+        if prev is not None and recv:
+            out[f"{prev[0]}->{actor}"] = (recv - prev[1]) / 1e3
+        prev = (actor, send)
+    if prev is not None and recv_ns:
+        out[f"{prev[0]}->{me}"] = (recv_ns - prev[1]) / 1e3
+    return out
