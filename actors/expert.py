@@ -1,0 +1,190 @@
+"""The expert actor: detector + nav PID follower, or detector + arm pre-grasp pose.
+
+Inputs  rgb    from the camera: arrays["rgb"] uint8 [H, W, 3], tick, t_sim, meta episode,
+               control (samples with control=False, between control ticks, are ignored)
+        depth  (arm) from the camera: arrays["depth"] float32 [H, W] m, same ticks as rgb
+        state  (arm) from the sim: the wrist camera's pose is computed from qpos with the
+               expert's own copy of the model (compiled from the first sample's scene +
+               config, as the camera does)
+Output  action nav: arrays {"action": float32 [2]} ([v, w] in [-1, 1])
+               arm: arrays {"pose": float32 [6]} ([x, y, z m, roll, pitch, yaw rad])
+        tick and t_sim of the input frame (parent=msg), meta {"detection": dict | None,
+        "expert": True, "mode": ..., "episode": ...}.
+
+In lockstep the sim waits for the action of every control tick, so the expert answers
+every tick: with the search command (nav) or the HOME pose (arm) when nothing is detected.
+The library code is sebvs.experts (detector, pid, nav, arm); this module only wires it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from sebvs.runtime import Actor, Message
+
+
+@dataclass
+class _Pending:
+    rgb: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    msg: Message | None = None
+
+
+class Expert(Actor):
+    inputs = ("rgb", "depth", "state")
+    outputs = ("action",)
+
+    @dataclass
+    class Params:
+        task: Literal["nav", "arm"] = "nav"
+        # detector (sebvs.experts.detector.ColorDetector)
+        color: list = field(default_factory=lambda: [0.9, 0.15, 0.1])   # rgb in [0, 1]
+        hue_tol: float = 15.0          # deg
+        s_min: int = 90                # saturation, 0..255
+        c_min: int = 5                 # chroma, DN
+        min_area: int = 3              # px
+        # nav PIDs (sebvs.experts.nav.NavExpertConfig), normalised image units
+        yaw_kp: float = 1.6
+        yaw_ki: float = 0.3
+        yaw_kd: float = 0.12
+        speed_kp: float = 8.0
+        speed_ki: float = 0.5
+        speed_kd: float = 0.0
+        anti_windup: Literal["clamp", "backcalc", "none"] = "clamp"
+        desired_width: float = 0.12    # bbox width / image width at the following distance
+        turn_slowdown: float = 0.8
+        hold_s: float = 0.3            # s without a detection before searching
+        search_w: float = 0.6          # search yaw rate in [-1, 1] units
+        control_hz: float = 20.0       # dt of the first tick of an episode (then from t_sim)
+        # arm (sebvs.experts.arm.ArmExpertConfig)
+        clearance: float = 0.10        # m above the object's top face
+        camera: str = ""               # wrist camera name ("" = the scene's first)
+
+    async def setup(self) -> None:
+        from sebvs.experts.detector import ColorDetector
+        p = self.params
+        if len(p.color) != 3:
+            raise ValueError(f"expert: color must be [r, g, b], got {p.color!r}")
+        self.detector = ColorDetector(rgb=tuple(float(c) for c in p.color), hue_tol=p.hue_tol,
+                                      s_min=p.s_min, c_min=p.c_min, min_area=p.min_area)
+        self.episode = None
+        self.last_t: float | None = None
+        self.counts = {"actions": 0, "detected": 0, "missed": 0, "skipped_ticks": 0}
+        self.last_tick: int | None = None
+        if p.task == "nav":
+            self._setup_nav()
+        else:
+            missing = {"rgb", "depth", "state"} - set(self.connected)
+            if missing:
+                raise ValueError(f"expert: task arm needs inputs {sorted(missing)} wired")
+            self.pending: dict[int, _Pending] = {}
+            self.states: dict[int, dict] = {}
+            self.arm = None                 # built from the sim's scene + config
+            self.arm_key = None
+        self.log.info("expert: task %s, colour %s", p.task, p.color)
+
+    def _setup_nav(self) -> None:
+        from sebvs.experts.nav import NavExpert, NavExpertConfig
+        from sebvs.experts.pid import PIDGains
+        p = self.params
+        cfg = NavExpertConfig(
+            yaw=PIDGains(kp=p.yaw_kp, ki=p.yaw_ki, kd=p.yaw_kd, i_min=-0.4, i_max=0.4,
+                         tau_d=0.05, anti_windup=p.anti_windup),
+            speed=PIDGains(kp=p.speed_kp, ki=p.speed_ki, kd=p.speed_kd, i_min=-0.3, i_max=0.3,
+                           anti_windup=p.anti_windup),
+            desired_width=p.desired_width, turn_slowdown=p.turn_slowdown, hold_s=p.hold_s,
+            search_w=p.search_w)
+        self.nav = NavExpert(cfg)
+
+    # ------------------------------------------------------------------ common
+    def _new_tick(self, msg: Message) -> float:
+        """Episode bookkeeping; returns dt (s) since the previous control tick."""
+        ep = msg.meta.get("episode")
+        if ep != self.episode or self.last_t is None or msg.t_sim is None:
+            self.episode = ep
+            if self.params.task == "nav":
+                self.nav.reset()
+            dt = 1.0 / self.params.control_hz
+        else:
+            dt = msg.t_sim - self.last_t
+            if not dt > 0:
+                dt = 1.0 / self.params.control_hz
+        self.last_t = msg.t_sim
+        if self.last_tick is not None and msg.tick is not None and msg.tick > self.last_tick + 1:
+            self.counts["skipped_ticks"] += msg.tick - self.last_tick - 1
+        self.last_tick = msg.tick
+        return dt
+
+    async def _answer(self, msg: Message, name: str, value: np.ndarray, det, mode: str) -> None:
+        self.counts["actions"] += 1
+        self.counts["detected" if det is not None else "missed"] += 1
+        await self.emit("action", {name: value}, parent=msg,
+                        meta={"detection": det.as_dict() if det is not None else None,
+                              "expert": True, "mode": mode, "episode": msg.meta.get("episode")})
+
+    # ------------------------------------------------------------------ nav
+    async def on_rgb(self, msg: Message) -> None:
+        if msg.meta.get("control") is False:
+            return      # a sample between control ticks (camera rgb_hz > control rate)
+        if self.params.task == "nav":
+            dt = self._new_tick(msg)
+            rgb = msg.arrays["rgb"]
+            det = self.detector.detect(rgb)
+            cmd = self.nav.act(det, (rgb.shape[1], rgb.shape[0]), dt)
+            await self._answer(msg, "action", cmd, det, self.nav.mode)
+        else:
+            self._pending(msg).rgb = np.array(msg.arrays["rgb"])
+            if self._pending(msg).msg is None:
+                self._pending(msg).msg = msg
+            await self._arm_ready()
+
+    # ------------------------------------------------------------------ arm
+    def _pending(self, msg: Message) -> _Pending:
+        return self.pending.setdefault(msg.tick, _Pending())
+
+    async def on_depth(self, msg: Message) -> None:
+        if self.params.task != "arm" or msg.meta.get("control") is False:
+            return
+        self._pending(msg).depth = np.array(msg.arrays["depth"])
+        await self._arm_ready()
+
+    async def on_state(self, msg: Message) -> None:
+        if self.params.task != "arm":
+            return
+        meta = msg.meta
+        if "config" in meta and (meta["scene"], meta["config"]) != self.arm_key:
+            from sebvs.experts.arm import ArmCameraModel
+            self.arm = ArmCameraModel(meta["scene"], meta["config"], camera=self.params.camera)
+            self.arm_key = (meta["scene"], meta["config"])
+        if not meta.get("control"):
+            return
+        self.states[msg.tick] = {k: np.array(a) for k, a in msg.arrays.items()}
+        await self._arm_ready()
+
+    async def _arm_ready(self) -> None:
+        """Answer every tick whose rgb, depth and state have all arrived, oldest first."""
+        from sebvs.experts.arm import ArmExpertConfig, pregrasp_from_images
+        for tick in sorted(self.pending):
+            pend = self.pending[tick]
+            if pend.rgb is None or pend.depth is None or tick not in self.states or \
+                    self.arm is None:
+                continue
+            self._new_tick(pend.msg)
+            cam = self.arm.camera_pose(self.states.pop(tick))
+            pose, det, mode = pregrasp_from_images(
+                pend.rgb, pend.depth, cam, self.detector,
+                ArmExpertConfig(clearance=self.params.clearance, **self.arm.scene_constants()))
+            del self.pending[tick]
+            await self._answer(pend.msg, "pose", pose, det, mode)
+        # frames of ticks that can no longer complete (a lost state) must not pile up
+        for old in [t for t in self.pending if self.last_tick is not None and
+                    t < self.last_tick - 100]:
+            del self.pending[old]
+        for old in [t for t in self.states if self.last_tick is not None and
+                    t < self.last_tick - 100]:
+            del self.states[old]
+
+    def stats(self) -> dict:
+        return dict(self.counts)
