@@ -20,7 +20,7 @@ gl:
 	@bash scripts/ensure_gl.sh
 
 demo: $(STAMP) gl
-	$(VENV)/bin/sebvs run topologies/synthetic.toml --for 5 --profile
+	$(VENV)/bin/sebvs demo topologies/nav_expert.toml --set sim.episodes=2
 
 test: $(STAMP) gl
 	$(VPY) -m pytest -q

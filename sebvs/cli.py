@@ -11,7 +11,7 @@ import sys
 import tomllib
 
 # subcommand modules with a `register(subparsers)`; each adds its own commands
-PLUGINS = ("sebvs.dvs.cli", "sebvs.sim.cli", "sebvs.data.cli", "sebvs.policy.cli",
+PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.sim.cli", "sebvs.data.cli", "sebvs.policy.cli",
            "sebvs.eval.cli")
 
 
