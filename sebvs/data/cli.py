@@ -1,0 +1,54 @@
+"""Command-line registration for the data tools: `sebvs record`, `sebvs data check|stats`."""
+from __future__ import annotations
+
+
+def _check(args) -> int:
+    from .check import cmd_check
+    return cmd_check(args)
+
+
+def _stats(args) -> int:
+    from .stats import cmd_stats
+    return cmd_stats(args)
+
+
+def _record(args) -> int:
+    from .record import cmd_record
+    return cmd_record(args)
+
+
+def register(sub) -> None:
+    d = sub.add_parser("data", help="dataset tools: check, stats",
+                       description="Inspect recorded datasets (one HDF5 file per episode "
+                                   "plus index.json).")
+    dsub = d.add_subparsers(dest="data_cmd", metavar="SUBCOMMAND", required=True)
+    c = dsub.add_parser("check", help="verify every episode against the index",
+                        description="Verify each indexed episode (exists, sha256, frame "
+                                    "counts, shapes, attributes); report .partial leftovers "
+                                    "(lost in-progress episodes) and unindexed files. Exit "
+                                    "code 1 on any problem.")
+    c.add_argument("dir", help="dataset directory")
+    c.set_defaults(func=_check)
+    s = dsub.add_parser("stats", help="summary and the paper's Fig. 3 views",
+                        description="Print episodes, frames, minutes simulated and labelled "
+                                    "commands; --plot writes control-vector / workspace "
+                                    "scatter, per-episode speed and events as PNG.")
+    s.add_argument("dir", help="dataset directory")
+    s.add_argument("--plot", metavar="FILE", help="write the figure (PNG)")
+    s.set_defaults(func=_stats)
+
+    r = sub.add_parser("record", help="record expert demonstrations into a dataset",
+                       description="Run a recording topology until its recorder has "
+                                   "finished N episodes; numbering resumes in an existing "
+                                   "dataset. Shows episodes, frames and speed (simulated "
+                                   "s per wall s).")
+    r.add_argument("topology", help="topology TOML file with a recorder actor")
+    r.add_argument("--episodes", type=int, required=True, metavar="N")
+    r.add_argument("--out", required=True, metavar="DIR", help="dataset directory")
+    r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
+                   help="override a parameter (value read as TOML; repeatable)")
+    r.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+                   help="give up after this long (default: none)")
+    r.add_argument("--runs-dir", default=None)
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=_record)

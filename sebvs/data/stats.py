@@ -1,0 +1,145 @@
+"""``sebvs data stats DIR --plot FILE``: a dataset's summary and the paper's Fig. 3 views.
+
+Nav: control-vector scatter (v against w), mean forward speed per episode, accumulated
+events per episode. Arm: end-effector workspace (x-y and x-z scatter of the pre-grasp
+poses), accumulated events per episode. Printed: episodes, frames, minutes of simulation,
+labelled commands (frames whose target is finite).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .episode import open_episode
+from .index import INDEX
+
+
+@dataclass
+class EpisodeStats:
+    file: str
+    frames: int
+    sim_s: float
+    labelled: int
+    events: int                     # ON + OFF counts summed over the episode (-1: no events)
+    mean_target: np.ndarray         # mean of the target over the episode
+
+
+@dataclass
+class DatasetStats:
+    root: Path
+    task: str
+    episodes: list[EpisodeStats] = field(default_factory=list)
+    targets: np.ndarray | None = None   # all targets [N, 2|6]
+
+    @property
+    def frames(self) -> int:
+        return sum(e.frames for e in self.episodes)
+
+    @property
+    def sim_minutes(self) -> float:
+        return sum(e.sim_s for e in self.episodes) / 60
+
+    @property
+    def labelled(self) -> int:
+        return sum(e.labelled for e in self.episodes)
+
+    def summary(self) -> str:
+        lines = [f"dataset {self.root} (task {self.task})",
+                 f"  episodes           {len(self.episodes)}",
+                 f"  frames             {self.frames}",
+                 f"  simulation         {self.sim_minutes:.1f} min",
+                 f"  labelled commands  {self.labelled}"]
+        if self.episodes:
+            ev = [e.events for e in self.episodes if e.events >= 0]
+            if ev:
+                lines.append(f"  events per episode {np.mean(ev):.0f} mean "
+                             f"({min(ev)} .. {max(ev)})")
+            if self.task == "nav" and self.targets is not None and len(self.targets):
+                v, w = self.targets[:, 0], self.targets[:, 1]
+                lines.append(f"  v mean {v.mean():+.3f} sd {v.std():.3f}; "
+                             f"w mean {w.mean():+.3f} sd {w.std():.3f}")
+        return "\n".join(lines)
+
+
+def episode_files(root: Path) -> list[str]:
+    """The indexed episodes (only those: .partial and unindexed files are never used)."""
+    index = root / INDEX
+    if index.exists():
+        return [e["file"] for e in json.loads(index.read_text())["episodes"]]
+    return sorted(p.name for p in root.glob("episode_*.h5"))
+
+
+def collect(root: str | Path) -> DatasetStats:
+    root = Path(root)
+    files = episode_files(root)
+    task, targets, eps = None, [], []
+    for name in files:
+        with open_episode(root / name) as ep:
+            task = task or ep.task
+            y = ep.target[:]
+            t = ep.t_sim[:]
+            # an episode covers its frames' span plus one control period
+            dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+            sim_s = float(t[-1] - t[0] + dt) if len(t) else 0.0
+            events = -1
+            if ep.event_frame is not None:
+                events = 0
+                for s in range(0, len(ep), 256):
+                    events += int(ep.event_frame[s:s + 256].sum(dtype=np.int64))
+            finite = np.isfinite(y).all(axis=1)
+            eps.append(EpisodeStats(name, len(ep), sim_s, int(finite.sum()), events,
+                                    y[finite].mean(axis=0) if finite.any()
+                                    else np.full(y.shape[1], np.nan)))
+            targets.append(y[finite])
+    st = DatasetStats(root, task or "nav", eps)
+    st.targets = np.concatenate(targets) if targets else np.zeros((0, 2), np.float32)
+    return st
+
+
+def plot(st: DatasetStats, path: str | Path) -> None:
+    """Fig. 3 views as one PNG (matplotlib Agg: no display needed)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    y = st.targets
+    n = np.arange(len(st.episodes))
+    if st.task == "nav":
+        ax = axes[0]
+        ax.scatter(y[:, 1], y[:, 0], s=3, alpha=0.3)
+        ax.set(xlabel="w (yaw rate command)", ylabel="v (forward command)",
+               title=f"control vectors ({len(y)} commands)", xlim=(-1.05, 1.05),
+               ylim=(-1.05, 1.05))
+        ax = axes[1]
+        ax.bar(n, [e.mean_target[0] for e in st.episodes])
+        ax.set(xlabel="episode", ylabel="mean v", title="mean forward speed per episode")
+    else:
+        ax = axes[0]
+        sc = ax.scatter(y[:, 0], y[:, 1], s=4, c=y[:, 2], cmap="viridis", alpha=0.5)
+        fig.colorbar(sc, ax=ax, label="z (m)")
+        ax.set(xlabel="x (m)", ylabel="y (m)", title=f"end-effector workspace ({len(y)} poses)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax = axes[1]
+        ax.scatter(y[:, 0], y[:, 2], s=4, alpha=0.5)
+        ax.set(xlabel="x (m)", ylabel="z (m)", title="workspace, side view")
+    ax = axes[2]
+    ax.bar(n, [max(e.events, 0) for e in st.episodes], color="tab:orange")
+    ax.set(xlabel="episode", ylabel="ON + OFF events", title="accumulated events per episode")
+    fig.suptitle(f"{st.root.name}: {len(st.episodes)} episodes, {st.frames} frames, "
+                 f"{st.sim_minutes:.1f} min simulated")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def cmd_stats(args) -> int:
+    st = collect(args.dir)
+    print(st.summary())
+    if args.plot:
+        plot(st, args.plot)
+        print(f"plot: {args.plot}")
+    return 0
