@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 
 
-def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int):
+def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, vary_gain: bool):
     """-> rgb [T, H, W, 3], events [T, 2, H, W], centre [T, 2] in [0, 1], gain [T] in [0.2, 1]."""
     x, y = rng.uniform(0, w - side), rng.uniform(0, h - side)
     vx, vy = rng.uniform(-2, 2, 2) * max(1, w // 32)
@@ -26,7 +26,8 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int):
     events = np.zeros((frames, 2, h, w), np.uint8)
     centre = np.empty((frames, 2), np.float32)
     prev = None
-    gain = rng.uniform(0.2, 1.0, frames).astype(np.float32)
+    gain = rng.uniform(0.2, 1.0, frames).astype(np.float32) if vary_gain else \
+        np.ones(frames, np.float32)
     for t in range(frames):
         x, y = x + vx, y + vy
         if not 0 <= x <= w - side:
@@ -35,8 +36,9 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int):
             vy, y = -vy, float(np.clip(y, 0, h - side))
         mask = np.zeros((h, w), bool)
         mask[int(y):int(y) + side, int(x):int(x) + side] = True
-        # the background's level follows the gain too: a global cue, quick to learn
-        rgb[t] = rng.integers(0, 40, (h, w, 3), dtype=np.uint8) + np.uint8(100 * gain[t])
+        rgb[t] = rng.integers(0, 40, (h, w, 3), dtype=np.uint8)
+        if vary_gain:   # the background's level follows the gain: a global cue, quick to learn
+            rgb[t] += np.uint8(100 * gain[t])
         rgb[t][mask] = (np.array([250, 240, 80]) * gain[t]).astype(np.uint8)
         n = int(round(1 + 7 * gain[t]))     # a brighter square fires more events
         if prev is not None:
@@ -63,7 +65,8 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
     rng = np.random.default_rng(seed)
     index = []
     for e in range(episodes):
-        rgb, events, centre, gain = _frames(rng, frames, height, width, max(4, width // 5))
+        rgb, events, centre, gain = _frames(rng, frames, height, width, max(4, width // 5),
+                                            vary_gain=target == "gain")
         name = f"episode_{e:04d}.h5"
         with h5py.File(root / name, "w") as f:
             f.create_dataset("rgb", data=rgb, chunks=(1, height, width, 3))
