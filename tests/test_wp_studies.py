@@ -1,0 +1,90 @@
+"""Study helpers of tools/work_precision.py: event metrics on hand-made streams, physics
+runs against a reference, the synthetic policy data, all in a few seconds."""
+import numpy as np
+import pytest
+
+from sebvs.eval import wp_events as ev
+from sebvs.eval import wp_physics as ph
+from sebvs.eval import wp_policy as pol
+
+
+def stream(*events):
+    """(t ns, x, y, p) tuples -> the four arrays."""
+    t, x, y, p = (np.array(c) for c in zip(*events)) if events else ([], [], [], [])
+    return (np.asarray(t, np.int64), np.asarray(x), np.asarray(y), np.asarray(p))
+
+
+# ------------------------------------------------------------------ event metrics
+def test_count_frames_bins_by_tick_and_polarity():
+    s = stream((0, 1, 0, 1), (10, 1, 0, 1), (49, 0, 1, -1), (50, 1, 1, 1), (200, 0, 0, 1))
+    c = ev.count_frames(*s, shape=(2, 2), t0_ns=0, period_ns=50, ticks=2)
+    assert c.shape == (2, 2, 2, 2) and c.dtype == np.int32
+    assert c[0, 0, 0, 1] == 2 and c[0, 1, 1, 0] == 1 and c[1, 0, 1, 1] == 1
+    assert c.sum() == 4                                 # t=200 is past the 2 ticks
+
+
+def test_relative_l1():
+    a, b = np.array([[1, 0], [2, 0]]), np.array([[1, 1], [0, 0]])
+    assert ev.relative_l1(a, b) == pytest.approx(3 / 2)
+    assert ev.relative_l1(b, b) == 0.0
+    assert ev.relative_l1(np.zeros(2), np.zeros(2)) == 0.0
+    assert ev.relative_l1(np.ones(2), np.zeros(2)) == float("inf")
+
+
+def test_timestamp_errors_match_nearest_same_pixel_and_polarity():
+    ref = stream((1000, 0, 0, 1), (5000, 0, 0, 1), (2000, 1, 0, -1), (7000, 1, 1, 1))
+    test = stream((1300, 0, 0, 1),      # nearest: 1000 -> 300
+                  (4000, 0, 0, 1),      # nearest: 5000 -> 1000
+                  (2600, 1, 0, -1),     # OFF at (1, 0): 600
+                  (2600, 1, 0, 1),      # ON at (1, 0): the reference has none
+                  (9000, 1, 1, 1))      # 2000
+    err, unmatched = ev.timestamp_errors(test, ref, (2, 2))
+    assert sorted(err.tolist()) == [300, 600, 1000, 2000] and unmatched == 1
+
+
+def test_event_errors_of_identical_streams():
+    s = stream((10, 0, 0, 1), (20, 1, 1, -1), (70, 1, 0, 1))
+    m = ev.event_errors(s, s, (2, 2), 0, 50, 2)
+    assert m["rel_l1"] == 0 and m["ts_median_us"] == 0 and m["count_ratio"] == 1
+    assert m["unmatched"] == 0
+
+
+# ------------------------------------------------------------------ physics
+def test_physics_study_points_and_convergence():
+    case = ph.nav_case(seed=1, seconds=0.5)
+    pts = ph.physics_study(case, 0.5, integrators=("euler",), timesteps=(0.01, 0.001),
+                           reference=("rk4", 0.0005))
+    assert [p["setting"] for p in pts] == [0.01, 0.001]
+    assert all(set(p) >= {"method", "setting", "error", "seconds", "diverged"} for p in pts)
+    assert not any(p["diverged"] for p in pts)
+    assert 0 < pts[1]["error"] < pts[0]["error"]          # first order: smaller step, better
+
+
+def test_diverged_run_is_marked(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)          # MuJoCo writes MUJOCO_LOG.TXT on the warning
+    case = ph.nav_case(seconds=0.2)
+
+    def drive(scene, model, data, t):
+        if t > 0.05 and model.opt.integrator == 0:      # euler only, not the reference
+            data.qvel[0] = np.nan                        # a blow-up the monitor must name
+    case.drive = drive
+    p = ph.physics_study(case, 0.2, integrators=("euler",), timesteps=(0.01,),
+                         reference=("rk4", 0.002))[0]
+    assert p["diverged"] and p["error"] is None and p["reason"].startswith("diverged")
+
+
+def test_belt_case_carries_the_box():
+    r = ph.run_case(ph.belt_case(speed=0.5), "implicitfast", 0.002, 1.0)
+    assert r["reason"] is None and 0.3 < r["pos"][0] < 0.5      # ~0.5 m/s once it sticks
+
+
+# ------------------------------------------------------------------ policy
+def test_synthetic_dataset_layout_and_baseline(tmp_path):
+    from sebvs.policy.dataset import EpisodeFrames, load_index
+    from sebvs.policy.inputs import Normalisation
+    root = pol.make_synthetic(tmp_path / "d", episodes=2, frames=5, size=32, seed=0)
+    eps = load_index(root)
+    assert [e["frames"] for e in eps] == [5, 5]
+    x, y = EpisodeFrames(root, eps, "nav", "rgb+event", Normalisation(size=32))[3]
+    assert x.shape == (5, 32, 32) and y.shape == (2,) and (np.abs(y) <= 1).all()
+    assert pol.mean_baseline(root, root) > 0

@@ -1,0 +1,188 @@
+#!/usr/bin/env python3
+"""Work-precision studies (issue 8): error against run time for every numerical knob.
+
+    tools/work_precision.py [--quick] --out DIR [--data DATASET --checkpoints CKPTS]
+                            [--only physics_nav,policy,...]
+
+Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
+{"studies": [{"name", "points": [{"method", "setting", "error", "seconds", ...}],
+"pareto", "note", "error_label", "seconds_label"}], "wall_seconds", "quick"}):
+
+  physics_nav       integrator x timestep, nav robot after N s of seeded commands:
+                    base position error (m) vs the reference (rk4, dt 1e-4 s) against wall
+                    seconds per simulated second (sebvs/eval/wp_physics.py)
+  physics_conveyor  a cube carried by the arm scene's moving belt, same axes; needs
+                    sebvs/sim/arm.py (noted as missing otherwise)
+  events            dvs sampling rate per emulator preset: relative L1 of ON/OFF count
+                    frames per control tick vs a reference sampled at 10 kHz, against
+                    wall s per simulated s of render + emulation (sebvs/eval/wp_events.py);
+  events_timing     the same runs, p90 event-timestamp error (us) as the error axis;
+                    both need sebvs/dvs (noted as missing otherwise)
+  policy            action error on held-out episodes against latency per call, per
+                    modality and input size; real checkpoints with --data/--checkpoints,
+                    else tiny models trained on a synthetic dataset (marked in every point)
+
+--quick: shorter runs, one timing repeat, a 5 kHz event reference and 0.4 s of motion,
+smaller policy sizes; finishes within 60 s on this machine class (the wall time is in
+summary.json). Without --quick: medians of 3 timing repeats.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tqdm import tqdm  # noqa: E402
+
+from sebvs.eval import wp_physics  # noqa: E402  (imports sebvs.sim: MUJOCO_GL first)
+from sebvs.eval.work_precision import plot_study, write_csv, write_summary  # noqa: E402
+
+STUDIES = ("physics_nav", "physics_conveyor", "events", "events_timing", "policy")
+
+
+def settings(quick: bool) -> dict:
+    """Every size knob of the studies in one place, so --quick is easy to audit."""
+    if quick:
+        return {"nav_seconds": 2.0, "conveyor_seconds": 1.0, "repeats": 1,
+                "ev_rates": (50, 100, 200, 500, 1000), "ev_ref_hz": 5000, "ev_seconds": 0.4,
+                "pol_sizes": (32, 64), "pol_episodes": 8, "pol_frames": 30, "pol_epochs": 3}
+    return {"nav_seconds": 5.0, "conveyor_seconds": 3.0, "repeats": 3,
+            "ev_rates": (50, 100, 200, 500, 1000, 2000), "ev_ref_hz": 10000,
+            "ev_seconds": 1.5, "pol_sizes": (64, 160), "pol_episodes": 16,
+            "pol_frames": 60, "pol_epochs": 6}
+
+
+def _events_available() -> bool:
+    try:
+        from sebvs.eval import wp_events_run  # noqa: F401  (needs sebvs.dvs)
+    except ImportError:
+        return False
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="the < 60 s version")
+    ap.add_argument("--out", required=True, type=Path, help="output directory")
+    ap.add_argument("--data", type=Path, help="recorded dataset (policy study, real path)")
+    ap.add_argument("--checkpoints", type=Path, help="directory of <task>-<modality>.pt")
+    ap.add_argument("--only", default="", help=f"comma list out of {','.join(STUDIES)}")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    if bool(a.data) != bool(a.checkpoints):
+        ap.error("--data and --checkpoints go together")
+    only = [s for s in a.only.split(",") if s] or list(STUDIES)
+    for s in only:
+        if s not in STUDIES:
+            ap.error(f"unknown study {s!r} (one of {', '.join(STUDIES)})")
+    cfg = settings(a.quick)
+    a.out = a.out.resolve()
+    a.out.mkdir(parents=True, exist_ok=True)
+    for key in ("data", "checkpoints"):
+        if getattr(a, key):
+            setattr(a, key, getattr(a, key).resolve())
+    os.chdir(a.out)           # MuJoCo's warnings of diverged runs go to DIR/MUJOCO_LOG.TXT
+    t_start = time.perf_counter()
+
+    # Count runs first, so one bar covers the whole job.
+    nav = wp_physics.nav_case(a.seed, cfg["nav_seconds"])
+    n_phys = len(wp_physics.INTEGRATORS) * len(wp_physics.TIMESTEPS)
+    have_arm, have_ev = wp_physics.arm_available(), _events_available()
+    plan = {"physics_nav": n_phys, "physics_conveyor": n_phys if have_arm else 0,
+            "events": 0, "events_timing": 0, "policy": 0}
+    if have_ev and ("events" in only or "events_timing" in only):
+        from sebvs.eval import wp_events_run
+        plan["events"] = wp_events_run.n_runs(cfg)
+    if "policy" in only:
+        plan["policy"] = 0 if a.checkpoints else 3 * len(cfg["pol_sizes"])
+    total = sum(v for k, v in plan.items() if k in only)
+    bar = tqdm(total=total, unit="run", desc="work-precision", dynamic_ncols=True)
+    tick = bar.update
+
+    studies: list[dict] = []
+    ref = f"{wp_physics.REFERENCE[0]} at dt {wp_physics.REFERENCE[1]:g} s"
+    phys_labels = {"error_label": f"position error after N s [m] (vs {ref})",
+                   "seconds_label": "wall seconds per simulated second"}
+    if "physics_nav" in only:
+        bar.set_postfix_str("physics_nav")
+        pts = wp_physics.physics_study(nav, cfg["nav_seconds"], repeats=cfg["repeats"],
+                                       progress=tick)
+        studies.append({"name": "physics_nav", "points": pts, **phys_labels,
+                        "note": f"{nav.note}; {cfg['nav_seconds']:g} s simulated; error = "
+                                f"distance of the robot base from the reference ({ref}); "
+                                f"seconds = median of {cfg['repeats']} timed runs"})
+    if "physics_conveyor" in only:
+        if have_arm:
+            bar.set_postfix_str("physics_conveyor")
+            case = wp_physics.conveyor_case(a.seed)
+            pts = wp_physics.physics_study(case, cfg["conveyor_seconds"],
+                                           repeats=cfg["repeats"], progress=tick)
+            note = f"{case.note}; {cfg['conveyor_seconds']:g} s simulated; reference {ref}"
+        else:
+            pts, note = [], "not run: sebvs/sim/arm.py (conveyor) is not in this checkout"
+        studies.append({"name": "physics_conveyor", "points": pts, **phys_labels,
+                        "note": note})
+    if "events" in only or "events_timing" in only:
+        if have_ev:
+            bar.set_postfix_str("events")
+            ev, ev_timing, note = wp_events_run.study(cfg, a.seed, progress=tick)
+        else:
+            ev, ev_timing = [], []
+            note = "not run: the event emulator (sebvs/dvs) is not in this checkout"
+        labels = {"seconds_label": "wall seconds per simulated second (render + emulator)"}
+        if "events" in only:
+            studies.append({"name": "events", "points": ev, "note": note, **labels,
+                            "error_label": "relative L1 of ON/OFF counts per control tick"})
+        if "events_timing" in only:
+            studies.append({"name": "events_timing", "points": ev_timing, "note": note,
+                            **labels, "error_label": "p90 event-timestamp error [us]"})
+    if "policy" in only:
+        bar.set_postfix_str("policy")
+        from sebvs.eval import wp_policy
+        if a.checkpoints:
+            pts = wp_policy.real_points(a.data, a.checkpoints)
+            note = f"real: checkpoints {a.checkpoints} on held-out episodes of {a.data}"
+        else:
+            with tempfile.TemporaryDirectory(prefix="wp_policy_") as work:
+                pts = wp_policy.synthetic_points(
+                    work, sizes=cfg["pol_sizes"], episodes=cfg["pol_episodes"],
+                    frames=cfg["pol_frames"], epochs=cfg["pol_epochs"], seed=a.seed,
+                    progress=tick)
+            note = ("SYNTHETIC: no --data/--checkpoints given; tiny models trained "
+                    f"{cfg['pol_epochs']} epochs on a generated dataset "
+                    f"({cfg['pol_episodes']} episodes x {cfg['pol_frames']} frames), "
+                    "scored on episodes of another seed; these numbers exercise the study, "
+                    "they are not the paper's policies")
+        studies.append({"name": "policy", "points": pts, "note": note,
+                        "error_label": "mean |action error| on held-out episodes",
+                        "seconds_label": "latency per call [s] (prep + batch-1 inference)"})
+    bar.close()
+
+    for s in studies:
+        write_csv(s["points"], a.out / f"{s['name']}.csv")
+        if s["points"]:
+            title = s["name"] + (" (SYNTHETIC data)" if s["name"] == "policy"
+                                 and "SYNTHETIC" in s["note"] else "")
+            plot_study(title, s["points"], a.out / f"{s['name']}.png", s["error_label"],
+                       s["seconds_label"])
+    wall = time.perf_counter() - t_start
+    write_summary(studies, a.out / "summary.json")
+    # write_summary keeps exactly the studies; the run's own facts go beside them
+    summary = json.loads((a.out / "summary.json").read_text())
+    summary.update({"quick": a.quick, "wall_seconds": round(wall, 2), "settings": cfg})
+    (a.out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    for s in studies:
+        print(f"{s['name']}: {len(s['points'])} points. {s['note']}")
+    print(f"wrote {a.out}/summary.json in {wall:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
