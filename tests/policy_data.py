@@ -7,15 +7,16 @@ expert's action is a function of what the image shows, so a policy can learn it:
 or, with target="gain", from the square's brightness (see make_dataset).
 Event frames: ON counts where the square is now and was not, OFF where it was and is not,
 so an event-only policy can localise the square too.
-Written with h5py in the documented layout (sebvs/data's EpisodeWriter was not there yet).
+Written with sebvs/data's EpisodeWriter and DatasetIndex, as the recorder writes them.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import h5py
 import numpy as np
+
+from sebvs.data.episode import EpisodeWriter
+from sebvs.data.index import DatasetIndex, make_entry
 
 
 def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, vary_gain: bool):
@@ -55,36 +56,32 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
                  target: str = "position") -> Path:
     """Write ``episodes`` episode files and index.json under ``root``.
 
-    target "position": nav [v, w] from the square's centre (a ViT learns this only after a
-    plateau of several hundred steps: attention must first find the square);
+    target "position": nav [v, w] from the square's centre (learnt only after a few hundred
+    steps: attention must first find the square's patch);
     "gain": v = w = the square's brightness mapped to [-1, 1], visible in the mean of every
     channel, so a few epochs show the loss falling.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    index = []
+    index = DatasetIndex(root, task)
     for e in range(episodes):
         rgb, events, centre, gain = _frames(rng, frames, height, width, max(4, width // 5),
                                             vary_gain=target == "gain")
-        name = f"episode_{e:04d}.h5"
-        with h5py.File(root / name, "w") as f:
-            f.create_dataset("rgb", data=rgb, chunks=(1, height, width, 3))
-            f.create_dataset("events/frame", data=events, chunks=(1, 2, height, width))
-            if task == "nav":
-                if target == "gain":
-                    action = np.stack([gain * 2 - 1.2, gain * 2 - 1.2], axis=1)
-                else:
-                    action = np.stack([centre[:, 1] * 2 - 1, centre[:, 0] * 2 - 1], axis=1)
-                f.create_dataset("action", data=action.astype(np.float32))
+        if task == "nav":
+            if target == "gain":
+                targets = np.stack([gain * 2 - 1.2, gain * 2 - 1.2], axis=1)
             else:
-                cx, cy = centre[:, 0], centre[:, 1]
-                z = np.full_like(cx, 0.1)
-                pose = np.stack([cx, cy, z, 0 * cx, 0 * cx, cy - cx], axis=1)
-                f.create_dataset("pose", data=pose.astype(np.float32))
-            f.create_dataset("t_sim", data=np.arange(frames) / 30.0)
-            f.create_dataset("tick", data=np.arange(frames, dtype=np.int64))
-            f.attrs.update(task=task, seed=seed * 1000 + e)
-        index.append({"file": name, "frames": frames, "seed": seed * 1000 + e})
-    (root / "index.json").write_text(json.dumps({"task": task, "episodes": index}, indent=2))
+                targets = np.stack([centre[:, 1] * 2 - 1, centre[:, 0] * 2 - 1], axis=1)
+        else:
+            cx, cy = centre[:, 0], centre[:, 1]
+            targets = np.stack([cx, cy, np.full_like(cx, 0.1), 0 * cx, 0 * cx, cy - cx], axis=1)
+        path = index.path_for(index.next_episode_number())
+        with EpisodeWriter(path, task, {"seed": seed * 1000 + e, "scene": "synthetic"},
+                           compression="none") as w:
+            for t in range(frames):
+                w.append(rgb=rgb[t], event_frame=events[t], t_sim=t / 30.0, tick=t,
+                         **{"action" if task == "nav" else "pose": targets[t]})
+            w.finish("synthetic")
+        index.add(make_entry(path))
     return root

@@ -1,48 +1,41 @@
 """Behaviour-cloning samples read lazily from recorded episodes.
 
-Layout (one HDF5 file per episode, see sebvs/data): ``rgb`` [T, H, W, 3] uint8,
-``events/frame`` [T, 2, H, W] uint8, ``action`` [T, 2] float32 (nav) or ``pose`` [T, 6]
-float32 (arm), ``t_sim``, ``tick``; ``index.json`` in the dataset directory lists the
-episodes as {"file", "frames", "seed", ...}.
+The files are sebvs/data's (``open_episode``, ``DatasetIndex``): one HDF5 per episode with
+``rgb`` [T, H, W, 3] uint8, ``events/frame`` [T, 2, H, W] uint8, ``action`` [T, 2] float32
+(nav) or ``pose`` [T, 6] float32 (arm), ``t_sim``, ``tick``; ``index.json`` in the dataset
+directory lists the episodes as {"file", "frames", "seed", ...}.
 
 Nothing is loaded whole: the dataset is an index of (episode, frame) pairs and each item
-reads one frame. HDF5 handles are opened on first use in the process that reads (h5py
+reads one frame. Episode files are opened on first use in the process that reads (h5py
 handles must not cross a fork), so DataLoader workers each open their own.
 """
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import random
 from pathlib import Path
 
-import h5py
 import numpy as np
+
+from sebvs.data.episode import Episode, open_episode
+from sebvs.data.index import INDEX, DatasetIndex
 
 from .inputs import MODALITY_INPUTS, Normalisation, check_modality, model_input
 
-TARGET_KEY = {"nav": "action", "arm": "pose"}
-STREAM_KEY = {"rgb": "rgb", "events": "events/frame"}
-EPISODE_SUFFIXES = (".h5", ".hdf5")
+TASKS = ("nav", "arm")
 
 
-def load_index(root: str | Path) -> list[dict]:
-    """Episodes of a dataset directory: index.json's list, or the HDF5 files found there."""
+def load_index(root: str | Path, task: str | None = None) -> list[dict]:
+    """The episodes listed in ``root``/index.json (refused if it holds another task)."""
     root = Path(root)
-    index = root / "index.json"
-    if index.exists():
-        data = json.loads(index.read_text())
-        episodes = data["episodes"] if isinstance(data, dict) else data
-        return [dict(e) for e in episodes]
-    files = sorted(p for p in root.iterdir() if p.suffix in EPISODE_SUFFIXES)
-    if not files:
-        raise FileNotFoundError(f"{root}: no index.json and no episode files (*.h5)")
-    out = []
-    for p in files:
-        with h5py.File(p, "r") as f:
-            out.append({"file": p.name, "frames": int(f["rgb"].shape[0])})
-    return out
+    if not (root / INDEX).exists():
+        raise FileNotFoundError(f"{root}: no {INDEX} (record with `sebvs record`, or check "
+                                f"the path)")
+    episodes = DatasetIndex(root, task).episodes()
+    if not episodes:
+        raise ValueError(f"{root}/{INDEX} lists no episodes")
+    return episodes
 
 
 def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
@@ -52,7 +45,7 @@ def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
     """
     root = Path(root)
     h = hashlib.sha256()
-    index = root / "index.json"
+    index = root / INDEX
     if index.exists():
         h.update(index.read_bytes())
     for e in episodes:
@@ -88,7 +81,7 @@ class EpisodeFrames:
     def __init__(self, root: str | Path, episodes: list[dict], task: str, modality: str,
                  norm: Normalisation, max_frames: int = 0):
         check_modality(modality)
-        if task not in TARGET_KEY:
+        if task not in TASKS:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
         self.root, self.task, self.modality, self.norm = Path(root), task, modality, norm
         self.files = [e["file"] for e in episodes]
@@ -97,34 +90,43 @@ class EpisodeFrames:
             pick = np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)
             pairs = [pairs[i] for i in pick]
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        self._handles: dict[int, h5py.File] = {}
+        self._handles: dict[int, Episode] = {}
         self._pid = os.getpid()
 
     def __len__(self) -> int:
         return len(self.pairs)
 
-    def _file(self, ei: int) -> h5py.File:
+    def _episode(self, ei: int) -> Episode:
         if self._pid != os.getpid():      # a forked worker: never reuse the parent's handles
             self._handles, self._pid = {}, os.getpid()
-        f = self._handles.get(ei)
-        if f is None:
-            f = self._handles[ei] = h5py.File(self.root / self.files[ei], "r")
-        return f
+        ep = self._handles.get(ei)
+        if ep is None:
+            ep = open_episode(self.root / self.files[ei])
+            if ep.task != self.task:
+                ep.close()
+                raise ValueError(f"{ep.path}: episode of task {ep.task!r}, training {self.task!r}")
+            if "events" in MODALITY_INPUTS[self.modality] and ep.event_frame is None:
+                ep.close()
+                raise ValueError(f"{ep.path}: no events/frame, needed by modality "
+                                 f"{self.modality!r}")
+            self._handles[ei] = ep
+        return ep
 
     def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         ei, t = (int(v) for v in self.pairs[i])
-        f = self._file(ei)
-        streams = {s: f[STREAM_KEY[s]][t] for s in MODALITY_INPUTS[self.modality]}
+        ep = self._episode(ei)
+        frames = {"rgb": ep.rgb, "events": ep.event_frame}
+        streams = {s: frames[s][t] for s in MODALITY_INPUTS[self.modality]}
         x = model_input(self.modality, self.norm, **streams)
-        y = np.asarray(f[TARGET_KEY[self.task]][t], dtype=np.float32)
+        y = np.asarray(ep.target[t], dtype=np.float32)
         return x, y
 
     def episodes_of(self) -> set[str]:
         return {self.files[ei] for ei in np.unique(self.pairs[:, 0])}
 
     def close(self) -> None:
-        for f in self._handles.values():
-            f.close()
+        for ep in self._handles.values():
+            ep.close()
         self._handles = {}
 
     def __getstate__(self) -> dict:

@@ -106,7 +106,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     from .model import ERP, count_parameters
     check_modality(modality)
     data, out = Path(data), Path(out)
-    episodes = load_index(data)
+    episodes = load_index(data, s.task)
     train_eps, val_eps = split_episodes(episodes, s.val_fraction, s.seed)
     train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
     val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
