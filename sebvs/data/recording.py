@@ -163,7 +163,10 @@ class EpisodeRecorder:
         attrs = fields.pop("attrs", None) or {}
         if ep.writer is None:
             task = self.task or ("nav" if fields.get("action") is not None else "arm")
-            self.task = task
+            if self.index.task not in (None, task):
+                raise ValueError(f"{self.root}: dataset holds task {self.index.task!r}, "
+                                 f"the stream sends {task!r} targets")
+            self.task = self.index.data["task"] = task
             info = ep.info
             a = {**self.base_attrs, "scene": info.get("scene", ""),
                  "conditions": info.get("conditions", info.get("config", {})),

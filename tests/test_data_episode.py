@@ -1,0 +1,169 @@
+"""Episode files and the dataset index: round trip, atomic index, resumed numbering."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+import sebvs
+from sebvs.data.episode import EpisodeWriter, open_episode
+from sebvs.data.index import DatasetIndex, file_sha256, make_entry
+from sebvs.data.recording import TickJoiner, hop_latencies
+
+H, W, T = 24, 32, 12
+ATTRS = {"scene": "nav", "conditions": {"variant": "indoor", "speed": "fast"}, "seed": 42,
+         "topology": {"name": "t"}, "emulator": {"pos_thres": 0.3},
+         "event_scale": 0.5, "event_offset": [1.0, 2.0]}
+
+
+def write_episode(path, task="nav", frames=T, raw=False, compression="lzf"):
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 255, (frames, H, W, 3), dtype=np.uint8)
+    ev = rng.integers(0, 9, (frames, 2, H // 2, W // 2), dtype=np.uint8)
+    tgt = rng.uniform(-1, 1, (frames, 2 if task == "nav" else 6)).astype(np.float32)
+    w = EpisodeWriter(path, task, ATTRS, compression=compression)
+    for t in range(frames):
+        kw = {"action" if task == "nav" else "pose": tgt[t]}
+        if raw:
+            kw["raw_events"] = {"x": np.full(t, 3), "y": np.full(t, 4),
+                                "t": np.arange(t) + 1000 * t, "p": np.ones(t)}
+        w.append(rgb=rgb[t], event_frame=ev[t], t_sim=0.05 * t, tick=100 + t,
+                 latency={"sim->camera": 10.0 + t} if t else {"camera->recorder": 5.0},
+                 truth={"centroid": [t, -t], "visible": t % 2 == 0},
+                 modality="rgb+event" if t > 5 else "rgb", **kw)
+    assert path.with_name(path.name + ".partial").exists() and not path.exists()
+    assert w.finish("time_limit") == path
+    return rgb, ev, tgt
+
+
+@pytest.mark.parametrize("task", ["nav", "arm"])
+def test_episode_round_trips_every_array_and_attribute(tmp_path, task):
+    path = tmp_path / "episode_0000.h5"
+    rgb, ev, tgt = write_episode(path, task, raw=True)
+    assert not path.with_name(path.name + ".partial").exists()
+    with open_episode(path) as ep:
+        assert len(ep) == T and ep.task == task
+        np.testing.assert_array_equal(ep.rgb[:], rgb)
+        assert ep.rgb.chunks == (1, H, W, 3)            # one frame per chunk
+        np.testing.assert_array_equal(ep.event_frame[:], ev)
+        np.testing.assert_array_equal(ep.target[:], tgt)
+        assert (ep.action if task == "nav" else ep.pose) is not None
+        assert ep.target.dtype == np.float32 and ep.target.shape == (T, 2 if task == "nav" else 6)
+        np.testing.assert_allclose(ep.t_sim[:], 0.05 * np.arange(T))
+        assert ep.t_sim.dtype == np.float64
+        np.testing.assert_array_equal(ep.tick[:], 100 + np.arange(T))
+        lat = ep.latency["sim->camera"][:]
+        assert lat.dtype == np.float32 and np.isnan(lat[0]) and lat[3] == 13.0
+        assert ep.latency["camera->recorder"][0] == 5.0
+        np.testing.assert_array_equal(ep.truth["centroid"][:, 0], np.arange(T))
+        np.testing.assert_array_equal(ep.truth["visible"][:2], [1.0, 0.0])
+        assert ep.modality[0] == b"rgb" and ep.modality[T - 1] == b"rgb+event"
+        off = ep.raw_events["offset"][:]
+        assert len(off) == T + 1 and off[-1] == sum(range(T))
+        k = 5
+        np.testing.assert_array_equal(ep.raw_events["t"][off[k]:off[k + 1]],
+                                      np.arange(k) + 1000 * k)
+        a = ep.attrs
+        assert a["task"] == task and a["scene"] == "nav" and a["seed"] == 42
+        assert a["conditions"] == ATTRS["conditions"] and a["topology"] == {"name": "t"}
+        assert a["emulator"] == {"pos_thres": 0.3}
+        assert a["event_scale"] == 0.5 and a["event_offset"] == [1.0, 2.0]
+        assert a["version"] == sebvs.__version__
+        assert a["end_reason"] == "time_limit" and a["frames"] == T
+
+
+def test_policy_dataset_reads_recorded_episodes(tmp_path):
+    """The policy's loader (sebvs.policy.dataset) reads what the writer writes."""
+    from sebvs.policy.dataset import load_index
+    idx = DatasetIndex(tmp_path, "nav")
+    for n in range(2):
+        p = idx.path_for(idx.next_episode_number())
+        write_episode(p)
+        idx.add(make_entry(p))
+    assert [e["frames"] for e in load_index(tmp_path)] == [T, T]
+
+
+def test_writer_checks_inputs_and_abort_removes_the_partial(tmp_path):
+    path = tmp_path / "e.h5"
+    w = EpisodeWriter(path, "nav", {})
+    with pytest.raises(ValueError, match="action"):
+        w.append(rgb=np.zeros((4, 4, 3), np.uint8), t_sim=0, tick=0, pose=np.zeros(6))
+    with pytest.raises(ValueError, match="rgb"):
+        w.append(rgb=np.zeros((4, 4), np.uint8), t_sim=0, tick=0, action=[0, 0])
+    w.append(rgb=np.zeros((4, 4, 3), np.uint8), t_sim=0, tick=0, action=[0, 0])
+    with pytest.raises(ValueError, match="event_frame"):
+        w.append(rgb=np.zeros((4, 4, 3), np.uint8), t_sim=0, tick=1, action=[0, 0],
+                 event_frame=np.zeros((2, 2, 2), np.uint8))
+    w.abort()
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="task"):
+        EpisodeWriter(path, "fly", {})
+
+
+def test_event_counts_above_255_are_clipped(tmp_path):
+    path = tmp_path / "e.h5"
+    w = EpisodeWriter(path, "nav", {}, compression="none")
+    w.append(rgb=np.zeros((4, 4, 3), np.uint8), event_frame=np.full((2, 2, 2), 300, np.int32),
+             t_sim=0, tick=0, action=[0, 0])
+    w.finish()
+    with open_episode(path) as ep:
+        assert ep.event_frame.dtype == np.uint8 and ep.event_frame[0].max() == 255
+        assert ep.rgb.compression is None
+
+
+def test_index_add_is_atomic_and_numbering_resumes(tmp_path, monkeypatch):
+    idx = DatasetIndex(tmp_path, "nav")
+    assert idx.next_episode_number() == 0
+    p0 = idx.path_for(0)
+    write_episode(p0, frames=3)
+    e0 = make_entry(p0)
+    assert e0["sha256"] == file_sha256(p0) and e0["bytes"] == p0.stat().st_size
+    assert e0["frames"] == 3 and e0["seed"] == 42 and e0["reason"] == "time_limit"
+    assert e0["conditions"] == ATTRS["conditions"]
+    idx.add(e0)
+    before = (tmp_path / "index.json").read_text()
+    # a crash while the index is rewritten leaves the old index whole
+    p1 = idx.path_for(1)
+    write_episode(p1, frames=3)
+
+    def boom(src, dst):
+        raise OSError("crash")
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError):
+        DatasetIndex(tmp_path).add(make_entry(p1))
+    monkeypatch.undo()
+    assert (tmp_path / "index.json").read_text() == before
+    # a reopened dataset resumes after the highest number, in the index or on disk
+    (tmp_path / "episode_0004.h5.partial").write_bytes(b"lost")
+    idx2 = DatasetIndex(tmp_path)
+    assert idx2.task == "nav" and len(idx2.episodes()) == 1
+    assert idx2.next_episode_number() == 5
+    idx2.add(make_entry(p1))
+    data = json.loads((tmp_path / "index.json").read_text())
+    assert data["version"] == 1 and data["task"] == "nav"
+    assert [e["file"] for e in data["episodes"]] == ["episode_0000.h5", "episode_0001.h5"]
+    assert idx2.episode_paths() == [p0, p1]
+    with pytest.raises(ValueError, match="already"):
+        idx2.add(make_entry(p1))
+    with pytest.raises(ValueError, match="task"):
+        DatasetIndex(tmp_path, "arm")
+
+
+def test_joiner_completes_rows_and_drops_ticks_that_cannot_complete():
+    j = TickJoiner({"rgb", "action"}, max_pending=4)
+    assert j.add("rgb", 0, "r0") is None
+    assert j.add("action", 0, "a0") == (0, {"rgb": "r0", "action": "a0"})
+    j.add("rgb", 1, "r1")                  # its action never comes
+    j.add("rgb", 2, "r2")
+    assert j.add("action", 2, "a2")[0] == 2
+    assert j.incomplete == 1 and j.dropped_ticks == [1] and not j.pending
+    assert j.add("action", 1, "late") is None and j.late == 1
+    for t in range(3, 9):                  # a stalled stream: memory stays bounded
+        j.add("rgb", t, t)
+    assert sorted(j.pending) == [5, 6, 7, 8] and j.incomplete == 3
+
+
+def test_hop_latencies_from_stamps():
+    stamps = [["sim", 0, 1_000_000], ["camera", 1_050_000, 3_000_000]]
+    assert hop_latencies(stamps, 3_020_000, "recorder") == {"sim->camera": 50.0,
+                                                           "camera->recorder": 20.0}

@@ -1,0 +1,134 @@
+"""The recorder actor in real runs: N episodes, joined rows, RGB-only, kill -9, `sebvs record`."""
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from sebvs.cli import main
+from sebvs.data.check import check_dataset
+from sebvs.data.episode import open_episode
+from sebvs.data.index import DatasetIndex
+from sebvs.runtime.supervisor import Supervisor, control_request, run_topology
+from sebvs.runtime.topology import load_topology
+from tests.data_actors import expected_action
+
+
+def topology(tmp_path, out, *, events=True, task="nav", frames=10, episodes=3, extra=""):
+    ev = ', events = "source/events"' if events else ""
+    path = tmp_path / "record.toml"
+    path.write_text(f"""
+[topology]
+name = "record_test"
+seed = 0
+[actors.source]
+run = "tests.data_actors:DataSource"
+frames = {frames}
+task = "{task}"
+{extra}
+[actors.recorder]
+run = "actors.recorder:Recorder"
+inputs = {{ rgb = "source/rgb", action = "source/action", episode = "source/episode"{ev} }}
+out = "{out}"
+episodes = {episodes}
+""")
+    return path
+
+
+def test_recorder_writes_n_episodes_of_joined_rows_and_stops_the_run(tmp_path):
+    out = tmp_path / "ds"
+    t0 = time.monotonic()
+    run_topology(topology(tmp_path, out, extra="raw_events = 5"), duration_s=20,
+                 runs_dir=tmp_path, overrides=["recorder.raw_events=true"])
+    assert time.monotonic() - t0 < 15          # the recorder ended the run, not the timeout
+    idx = DatasetIndex(out)
+    assert [e["file"] for e in idx.episodes()] == [f"episode_{k:04d}.h5" for k in range(3)]
+    assert not list(out.glob("*.partial"))
+    for k, path in enumerate(idx.episode_paths()):
+        with open_episode(path) as ep:
+            assert len(ep) == 10
+            ticks = ep.tick[:]
+            np.testing.assert_array_equal(ticks, np.arange(10 * k, 10 * k + 10))
+            # each row joined from one tick: the source fills frames with tick % 256
+            assert (ep.rgb[:, 0, 0, 0] == ticks % 256).all()        # control=False skipped
+            assert (ep.event_frame[:, 1, 0, 0] == ticks % 256).all()
+            assert ep.rgb.shape == (10, 24, 32, 3) and ep.event_frame.shape == (10, 2, 12, 16)
+            np.testing.assert_array_equal(ep.action[:], [expected_action(t) for t in ticks])
+            np.testing.assert_array_equal(ep.truth["centroid"][:, 0], ticks)
+            assert ep.modality[0] == b"rgb"
+            assert ep.raw_events["offset"][-1] == 50
+            assert np.isfinite(ep.latency["source->recorder"][:]).all()
+            a = ep.attrs
+            assert a["seed"] == 1000 + k and a["conditions"] == {"variant": "unit", "k": k}
+            assert a["event_scale"] == 0.5 and a["emulator"] == {"pos_thres": 0.3,
+                                                                 "neg_thres": 0.3}
+            assert a["end_reason"] == "time_limit" and a["task"] == "nav"
+    assert check_dataset(out).ok
+
+
+def test_rgb_only_arm_recording_and_resumed_numbering(tmp_path):
+    out = tmp_path / "ds"
+    topo = topology(tmp_path, out, events=False, task="arm", frames=6, episodes=2)
+    run_topology(topo, duration_s=20, runs_dir=tmp_path)
+    run_topology(topo, duration_s=20, runs_dir=tmp_path)     # a second session appends
+    idx = DatasetIndex(out)
+    assert idx.task == "arm"
+    assert [e["file"] for e in idx.episodes()] == [f"episode_{k:04d}.h5" for k in range(4)]
+    with open_episode(idx.episode_paths()[3]) as ep:
+        assert ep.event_frame is None and ep.pose.shape == (6, 6) and ep.action is None
+        np.testing.assert_array_equal(ep.pose[:], [expected_action(t, "arm")
+                                                   for t in ep.tick[:]])
+    assert check_dataset(out).ok
+
+
+def test_kill_9_loses_only_the_episode_in_progress(tmp_path):
+    out = tmp_path / "ds"
+    topo = load_topology(topology(tmp_path, out, frames=100, episodes=0))   # 0.5 s episodes
+    sup = Supervisor(topo, runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    ctx = zmq.Context.instance()
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            reply = control_request(ctx, sup.specs["recorder"]["control"], {"cmd": "stats"}, 2)
+            st = reply["result"]["actor_stats"]
+            if st["episodes"] >= 2 and 20 <= st["frames_in_progress"] <= 70:
+                break
+            time.sleep(0.02)
+        else:
+            raise AssertionError(f"never mid-episode: {st}")
+        os.kill(sup.procs["recorder"].popen.pid, signal.SIGKILL)
+        assert sup.wait(10) == 1 and "SIGKILL" in sup.failure
+    finally:
+        sup.stop()
+    idx = DatasetIndex(out)
+    finished = idx.episodes()
+    assert len(finished) >= 2
+    partials = sorted(p.name for p in out.glob("*.partial"))
+    assert partials == [f"episode_{len(finished):04d}.h5.partial"]
+    rep = check_dataset(out)
+    assert not rep.problems and rep.lost == partials and not rep.ok
+    for path in idx.episode_paths():
+        with open_episode(path) as ep:
+            assert len(ep) == 100
+    # numbering resumes past the lost episode; it is never overwritten
+    assert idx.next_episode_number() == len(finished) + 1
+
+
+def test_sebvs_record_runs_to_n_episodes_and_resumes(tmp_path, capsys):
+    out = tmp_path / "ds"
+    topo = topology(tmp_path, tmp_path / "ignored", frames=8, episodes=0)
+    args = ["record", str(topo), "--episodes", "2", "--out", str(out), "--runs-dir",
+            str(tmp_path), "--quiet", "--timeout", "20"]
+    assert main(args) == 0
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "2 of 2 episode(s) recorded, 16 frames" in printed
+    assert "now holds 4 episode(s)" in printed
+    idx = DatasetIndex(out)
+    assert len(idx.episodes()) == 4 and not (tmp_path / "ignored").exists()
+    with open_episode(idx.episode_paths()[0]) as ep:
+        assert ep.attrs["topology"]["content"]["actors"]["source"]["frames"] == 8
+    assert check_dataset(out).ok

@@ -1,0 +1,86 @@
+"""`sebvs data check` and `sebvs data stats` on small datasets written with EpisodeWriter."""
+import shutil
+
+import numpy as np
+import pytest
+
+from sebvs.cli import main
+from sebvs.data.episode import EpisodeWriter
+from sebvs.data.index import DatasetIndex, make_entry
+
+
+def make_dataset(root, task="nav", episodes=3, frames=20, side=32):
+    idx = DatasetIndex(root, task)
+    rng = np.random.default_rng(1)
+    for _ in range(episodes):
+        path = idx.path_for(idx.next_episode_number())
+        w = EpisodeWriter(path, task, {"scene": task, "conditions": {"c": 1}, "seed": 3})
+        for t in range(frames):
+            y = rng.uniform(-1, 1, 2 if task == "nav" else 6)
+            w.append(rgb=rng.integers(0, 255, (side, side, 3), dtype=np.uint8),
+                     event_frame=rng.integers(0, 3, (2, side // 2, side // 2), dtype=np.uint8),
+                     t_sim=0.05 * t, tick=t, **{"action" if task == "nav" else "pose": y})
+        w.finish("time_limit")
+        idx.add(make_entry(path))
+    return idx
+
+
+def run_check(root, capsys):
+    code = main(["data", "check", str(root)])
+    return code, capsys.readouterr().out
+
+
+def test_check_passes_a_good_dataset(tmp_path, capsys):
+    make_dataset(tmp_path)
+    code, out = run_check(tmp_path, capsys)
+    assert code == 0, out
+    assert "3 indexed episode(s), 60 frames: OK" in out
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "truncated", "missing", "partial", "unindexed"])
+def test_check_names_a_damaged_episode_and_fails(tmp_path, capsys, damage):
+    make_dataset(tmp_path)
+    victim = tmp_path / "episode_0001.h5"
+    if damage == "corrupt":
+        data = bytearray(victim.read_bytes())
+        mid = len(data) // 2
+        data[mid:mid + 64] = bytes(64)      # same size, different bytes
+        victim.write_bytes(bytes(data))
+        expect = "sha256 differs"
+    elif damage == "truncated":
+        victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 3])
+        expect = "truncated"
+    elif damage == "missing":
+        victim.unlink()
+        expect = "missing"
+    elif damage == "partial":
+        victim = tmp_path / "episode_0003.h5.partial"
+        victim.write_bytes(b"\x89HDF half an episode")
+        expect = "lost in-progress episode"
+    else:
+        victim = tmp_path / "episode_0007.h5"
+        shutil.copy(tmp_path / "episode_0000.h5", victim)
+        expect = "not in index.json"
+    code, out = run_check(tmp_path, capsys)
+    assert code == 1
+    lines = [ln for ln in out.splitlines() if ln.startswith(victim.name)]
+    assert lines and any(expect in ln for ln in lines), out
+    # the other episodes are not blamed
+    assert not any(ln.startswith("episode_0000.h5") or ln.startswith("episode_0002.h5")
+                   for ln in out.splitlines()), out
+
+
+def test_check_fails_without_an_index(tmp_path, capsys):
+    code, out = run_check(tmp_path, capsys)
+    assert code == 1 and "index.json: missing" in out
+
+
+@pytest.mark.parametrize("task", ["nav", "arm"])
+def test_stats_prints_a_summary_and_renders_the_plot(tmp_path, capsys, task):
+    make_dataset(tmp_path / "ds", task)
+    png = tmp_path / "fig3.png"
+    assert main(["data", "stats", str(tmp_path / "ds"), "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "episodes           3" in out and "frames             60" in out
+    assert "labelled commands  60" in out and "simulation         0.1 min" in out
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
