@@ -11,6 +11,9 @@ Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
   physics_nav       integrator x timestep, nav robot after N s of seeded commands:
                     base position error (m) vs the reference (rk4, dt 1e-4 s) against wall
                     seconds per simulated second (sebvs/eval/wp_physics.py)
+  physics_belt      a box dropped onto a belt moving at 0.5 m/s (static geom with
+                    surfacevel, the conveyor's mechanism; our own MJCF), carried for N s:
+                    contacts and friction, same axes
   physics_conveyor  a cube carried by the arm scene's moving belt, same axes; needs
                     sebvs/sim/arm.py (noted as missing otherwise)
   events            dvs sampling rate per emulator preset: relative L1 of ON/OFF count
@@ -44,16 +47,16 @@ from tqdm import tqdm  # noqa: E402
 from sebvs.eval import wp_physics  # noqa: E402  (imports sebvs.sim: MUJOCO_GL first)
 from sebvs.eval.work_precision import plot_study, write_csv, write_summary  # noqa: E402
 
-STUDIES = ("physics_nav", "physics_conveyor", "events", "events_timing", "policy")
+STUDIES = ("physics_nav", "physics_belt", "physics_conveyor", "events", "events_timing", "policy")
 
 
 def settings(quick: bool) -> dict:
     """Every size knob of the studies in one place, so --quick is easy to audit."""
     if quick:
-        return {"nav_seconds": 2.0, "conveyor_seconds": 1.0, "repeats": 1,
+        return {"nav_seconds": 2.0, "belt_seconds": 1.0, "conveyor_seconds": 1.0, "repeats": 1,
                 "ev_rates": (50, 100, 200, 500, 1000), "ev_ref_hz": 5000, "ev_seconds": 0.4,
                 "pol_sizes": (32, 64), "pol_episodes": 8, "pol_frames": 30, "pol_epochs": 3}
-    return {"nav_seconds": 5.0, "conveyor_seconds": 3.0, "repeats": 3,
+    return {"nav_seconds": 5.0, "belt_seconds": 3.0, "conveyor_seconds": 3.0, "repeats": 3,
             "ev_rates": (50, 100, 200, 500, 1000, 2000), "ev_ref_hz": 10000,
             "ev_seconds": 1.5, "pol_sizes": (64, 160), "pol_episodes": 16,
             "pol_frames": 60, "pol_epochs": 6}
@@ -95,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     nav = wp_physics.nav_case(a.seed, cfg["nav_seconds"])
     n_phys = len(wp_physics.INTEGRATORS) * len(wp_physics.TIMESTEPS)
     have_arm, have_ev = wp_physics.arm_available(), _events_available()
-    plan = {"physics_nav": n_phys, "physics_conveyor": n_phys if have_arm else 0,
+    plan = {"physics_nav": n_phys, "physics_belt": n_phys, "physics_conveyor": n_phys if have_arm else 0,
             "events": 0, "events_timing": 0, "policy": 0}
     if have_ev and ("events" in only or "events_timing" in only):
         from sebvs.eval import wp_events_run
@@ -118,6 +121,14 @@ def main(argv: list[str] | None = None) -> int:
                         "note": f"{nav.note}; {cfg['nav_seconds']:g} s simulated; error = "
                                 f"distance of the robot base from the reference ({ref}); "
                                 f"seconds = median of {cfg['repeats']} timed runs"})
+    if "physics_belt" in only:
+        bar.set_postfix_str("physics_belt")
+        belt = wp_physics.belt_case()
+        pts = wp_physics.physics_study(belt, cfg["belt_seconds"], repeats=cfg["repeats"],
+                                       progress=tick)
+        studies.append({"name": "physics_belt", "points": pts, **phys_labels,
+                        "note": f"{belt.note}; {cfg['belt_seconds']:g} s simulated; reference "
+                                f"{ref}; stand-in for the arm conveyor (same surfacevel belt)"})
     if "physics_conveyor" in only:
         if have_arm:
             bar.set_postfix_str("physics_conveyor")
@@ -165,6 +176,13 @@ def main(argv: list[str] | None = None) -> int:
                         "seconds_label": "latency per call [s] (prep + batch-1 inference)"})
     bar.close()
 
+    if not a.quick:
+        # how far the reference itself is from the truth: rk4 at half its step
+        cases = {"physics_nav": nav, "physics_belt": wp_physics.belt_case()}
+        for s in studies:
+            if s["name"] in cases:
+                secs = cfg["nav_seconds"] if s["name"] == "physics_nav" else cfg["belt_seconds"]
+                s["reference_spread_m"] = wp_physics.reference_spread(cases[s["name"]], secs)
     for s in studies:
         write_csv(s["points"], a.out / f"{s['name']}.csv")
         if s["points"]:

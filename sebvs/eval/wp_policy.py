@@ -26,25 +26,25 @@ import statistics
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 
-from sebvs.policy.dataset import TARGET_KEY, STREAM_KEY, load_index
+from sebvs.data.episode import EpisodeWriter, open_episode
+from sebvs.data.index import DatasetIndex, make_entry
+from sebvs.policy.dataset import load_index
 
 
 def make_synthetic(root: str | Path, episodes: int, frames: int, size: int,
                    seed: int) -> Path:
     """Write `episodes` nav episodes of `frames` frames (size x size px) + index.json.
 
+    Written with sebvs.data (EpisodeWriter, DatasetIndex), as the recorder writes.
     Per frame: rgb [H, W, 3] uint8, events/frame [2, H, W] uint8 (ON where the square
     arrived, OFF where it left), action [v, w] float32 with
         w = 1 - 2 * x_centre / W   (turn towards the square; left of centre -> w > 0)
         v = 1 - 2 * side / side_max (approach while it looks small)
     """
     root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    index = []
     smin, smax = max(2, size // 10), max(4, size // 3)
     for e in range(episodes):
         rgb = np.empty((frames, size, size, 3), np.uint8)
@@ -71,17 +71,15 @@ def make_synthetic(root: str | Path, episodes: int, frames: int, size: int,
                 ev[t, 1][prev & ~mask] = 3
             prev = mask
             act[t] = (1 - 2 * side / smax, 1 - 2 * (x + side / 2) / size)
-        name = f"episode_{e:04d}.h5"
-        with h5py.File(root / name, "w") as f:
-            f.create_dataset("rgb", data=rgb)
-            f.create_dataset("events/frame", data=ev)
-            f.create_dataset("action", data=np.clip(act, -1, 1))
-            f.create_dataset("t_sim", data=np.arange(frames) * 0.05)
-            f.create_dataset("tick", data=np.arange(frames, dtype=np.int64))
-            f.attrs.update(task="nav", synthetic=True, seed=seed)
-        index.append({"file": name, "frames": frames, "seed": seed * 1000 + e})
-    (root / "index.json").write_text(json.dumps({"task": "nav", "synthetic": True,
-                                                 "episodes": index}, indent=2))
+        index = DatasetIndex(root, "nav")
+        path = index.path_for(index.next_episode_number())
+        with EpisodeWriter(path, "nav", {"seed": seed * 1000 + e, "synthetic": True,
+                                         "scene": "synthetic"}) as w:
+            for t in range(frames):
+                w.append(rgb=rgb[t], event_frame=ev[t], action=np.clip(act[t], -1, 1),
+                         t_sim=t * 0.05, tick=t)
+            w.finish("synthetic")
+        index.add(make_entry(path))
     return root
 
 
@@ -90,31 +88,28 @@ def evaluate(pt: str | Path, data: str | Path, episodes: list[str] | None = None
     """Score one checkpoint -> {"modality", "size", "error", "seconds", "frames",
     "p90_seconds"}. Frames are read in episode order, at most `max_frames` (evenly
     strided); timing uses the first `timing_calls` of them after one warm-up call."""
-    import torch
-
     from sebvs.policy.infer import PolicySet
     from sebvs.policy.checkpoint import read_config
     cfg = read_config(pt)
     policies = PolicySet({cfg["modality"]: Path(pt)})
     task, modality = cfg["task"], cfg["modality"]
     data = Path(data)
-    files = episodes or [e["file"] for e in load_index(data)]
+    files = episodes or [e["file"] for e in load_index(data, task)]
     frames = []
     for name in files:
-        with h5py.File(data / name, "r") as f:
-            n = f[TARGET_KEY[task]].shape[0]
-            for t in range(n):
-                frames.append((name, t))
+        with open_episode(data / name) as ep:
+            frames += [(name, t) for t in range(len(ep))]
     if len(frames) > max_frames:
         pick = np.linspace(0, len(frames) - 1, max_frames).round().astype(int)
         frames = [frames[i] for i in pick]
     errs, times = [], []
-    handles: dict[str, h5py.File] = {}
+    opened: dict = {}
     try:
         for k, (name, t) in enumerate(frames):
-            f = handles.get(name) or handles.setdefault(name, h5py.File(data / name, "r"))
-            obs = {"rgb" if s == "rgb" else "events": f[STREAM_KEY[s]][t]
-                   for s in ("rgb", "events") if STREAM_KEY[s] in f}
+            ep = opened.get(name) or opened.setdefault(name, open_episode(data / name))
+            obs = {"rgb": ep.rgb[t]}
+            if ep.event_frame is not None:
+                obs["events"] = ep.event_frame[t]
             if k == 0:
                 policies.act(modality, **obs)          # warm-up: first calls allocate
             t0 = time.perf_counter()
@@ -122,22 +117,21 @@ def evaluate(pt: str | Path, data: str | Path, episodes: list[str] | None = None
             dt = time.perf_counter() - t0
             if k < timing_calls:
                 times.append(dt)
-            errs.append(np.abs(y - np.asarray(f[TARGET_KEY[task]][t], np.float32)).mean())
+            errs.append(np.abs(y - np.asarray(ep.target[t], np.float32)).mean())
     finally:
-        for f in handles.values():
-            f.close()
-    del torch
+        for ep in opened.values():
+            ep.close()
     return {"modality": modality, "size": int(cfg["size"]), "error": float(np.mean(errs)),
             "seconds": statistics.median(times), "p90_seconds": float(np.percentile(times, 90)),
             "frames": len(errs)}
 
 
 def _targets(data: Path, task: str, files: list[str] | None = None) -> np.ndarray:
-    files = files or [e["file"] for e in load_index(data)]
+    files = files or [e["file"] for e in load_index(data, task)]
     out = []
     for name in files:
-        with h5py.File(Path(data) / name, "r") as f:
-            out.append(np.asarray(f[TARGET_KEY[task]][:], np.float32))
+        with open_episode(Path(data) / name) as ep:
+            out.append(np.asarray(ep.target[:], np.float32))
     return np.concatenate(out)
 
 
