@@ -98,6 +98,7 @@ class Recorder(Actor):
                   else (row["action"]["t_sim"] or 0.0),
                   "latency": latency, "truth": rgb.get("truth"),
                   "modality": row["action"].get("modality"),
+                  "episode": rgb.get("episode"),
                   row["action"]["key"]: row["action"]["value"]}
         if "events" in row:
             fields["event_frame"] = row["events"]["frame"]
@@ -113,7 +114,8 @@ class Recorder(Actor):
             return
         truth = msg.meta.get("truth")
         self._take("rgb", msg, {"rgb": np.array(msg.arrays["rgb"]),   # copy out of shm
-                                "truth": truth if isinstance(truth, dict) else None})
+                                "truth": truth if isinstance(truth, dict) else None,
+                                "episode": msg.meta.get("episode")})
 
     async def on_events(self, msg: Message) -> None:
         if msg.meta.get("control") is False:

@@ -37,9 +37,11 @@ class DataSource(Actor):
         task: Literal["nav", "arm"] = "nav"
         between: int = 1              # rgb samples with control=False between ticks (skipped)
         raw_events: int = 0           # raw events per frame (0: none sent)
+        episode_meta: bool = True     # rgb meta carries the episode number, as the camera's
 
     async def setup(self) -> None:
         self.tick = 0
+        self.episode = 0
 
     async def run(self) -> None:
         p = self.params
@@ -47,6 +49,7 @@ class DataSource(Actor):
         t0, n = time.monotonic_ns(), 0
         k = 0
         while not self.stopping.is_set() and (p.episodes <= 0 or k < p.episodes):
+            self.episode = k
             info = {"episode": k, "seed": 1000 + k, "scene": "test",
                     "config": {"variant": "unit", "k": k}}
             await self.emit("episode", meta={"event": "start", "reason": "", **info},
@@ -73,7 +76,9 @@ class DataSource(Actor):
         truth = {"centroid": [float(t), float(-t)], "bbox": [0.0, 1.0, 2.0, 3.0],
                  "visible": True}
         await self.emit("rgb", {"rgb": np.full((p.height, p.width, 3), v, np.uint8)},
-                        tick=t, t_sim=t_sim, meta={"control": True, "truth": truth})
+                        tick=t, t_sim=t_sim, meta={"control": True, "truth": truth,
+                                                   **({"episode": self.episode}
+                                                      if p.episode_meta else {})})
         ev = {"frame": np.full((2, p.height // 2, p.width // 2), v, np.uint8)}
         if p.raw_events:
             m = p.raw_events

@@ -8,7 +8,7 @@ import pytest
 import sebvs
 from sebvs.data.episode import EpisodeWriter, open_episode
 from sebvs.data.index import DatasetIndex, file_sha256, make_entry
-from sebvs.data.recording import TickJoiner, hop_latencies
+from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
 
 H, W, T = 24, 32, 12
 ATTRS = {"scene": "nav", "conditions": {"variant": "indoor", "speed": "fast"}, "seed": 42,
@@ -167,3 +167,27 @@ def test_hop_latencies_from_stamps():
     stamps = [["sim", 0, 1_000_000], ["camera", 1_050_000, 3_000_000]]
     assert hop_latencies(stamps, 3_020_000, "recorder") == {"sim->camera": 50.0,
                                                            "camera->recorder": 20.0}
+
+
+def test_rows_go_to_their_episode_whatever_the_marker_order(tmp_path):
+    """Markers travel on their own socket: a row may beat its start, or the previous end."""
+    rec = EpisodeRecorder(tmp_path, "nav")
+    row = lambda t, k: rec.row(t, rgb=np.full((4, 4, 3), t, np.uint8), t_sim=t / 10,
+                               action=[t, 0], episode=k)
+    row(0, 0)                                      # before any start: held
+    rec.start({"episode": 0, "seed": 5, "scene": "s", "config": {}}, 0)
+    row(1, 0)
+    row(2, 1)                                      # episode 1's first row, before 0's end
+    assert rec.end("time_limit", 1)[0]["frames"] == 2
+    rec.start({"episode": 1, "seed": 6, "scene": "s", "config": {}}, 2)
+    row(3, 1)
+    row(1, 0)                                      # a stray row of a finished episode
+    assert rec.end("diverged", 3)[0]["file"] == "episode_0001.h5"
+    assert rec.outside == 1 and rec.frames == 4 and not rec.open
+    with open_episode(tmp_path / "episode_0001.h5") as ep:
+        assert list(ep.tick[:]) == [2, 3] and ep.attrs["seed"] == 6
+        assert ep.attrs["end_reason"] == "diverged"
+    rec.start({"episode": 2}, 4)
+    row(4, 2)
+    assert rec.close() == [] and rec.discarded == 1        # in progress at shutdown
+    assert not list(tmp_path.glob("*.partial"))

@@ -70,7 +70,9 @@ def test_recorder_writes_n_episodes_of_joined_rows_and_stops_the_run(tmp_path):
 
 def test_rgb_only_arm_recording_and_resumed_numbering(tmp_path):
     out = tmp_path / "ds"
-    topo = topology(tmp_path, out, events=False, task="arm", frames=6, episodes=2)
+    # no episode number in the rgb meta: rows go to episodes by tick range
+    topo = topology(tmp_path, out, events=False, task="arm", frames=6, episodes=2,
+                    extra="episode_meta = false")
     run_topology(topo, duration_s=20, runs_dir=tmp_path)
     run_topology(topo, duration_s=20, runs_dir=tmp_path)     # a second session appends
     idx = DatasetIndex(out)

@@ -109,6 +109,7 @@ class EpisodeRecorder:
         self._next = self.index.next_episode_number()
         self.orphans: list[tuple[int, dict]] = []  # rows that came before their start marker
         self.max_orphans = max_orphans
+        self.started_ids: set = set()              # sim episode numbers seen starting
 
     # --- markers -------------------------------------------------------------------
     def start(self, info: dict, tick: int) -> None:
@@ -119,13 +120,15 @@ class EpisodeRecorder:
             self._discard(ep, "no end marker")
         self.open.append(OpenEpisode(self._next, tick, dict(info)))
         self._next += 1
+        if info.get("episode") is not None:
+            self.started_ids.add(info["episode"])
         # rows that beat the start marker here (it travels on its own socket) belong to it
         orphans, self.orphans = self.orphans, []
         for t, fields in orphans:
-            if t >= tick:
-                self.row(t, **fields)
-            else:
+            if fields.get("episode") is None and t < tick:
                 self.outside += 1
+            else:
+                self.row(t, **fields)
 
     def end(self, reason: str, tick: int) -> list[dict]:
         """Mark the open episode's end; returns entries of episodes finished now."""
@@ -140,7 +143,8 @@ class EpisodeRecorder:
 
     # --- rows ----------------------------------------------------------------------
     def row(self, tick: int, **fields) -> list[dict]:
-        """Append one joined row (EpisodeWriter.append fields; ``attrs`` sets file attributes).
+        """Append one joined row (EpisodeWriter.append fields; ``attrs`` sets file
+        attributes; ``episode``: the sim's episode number the row shows, when known).
 
         Returns entries of episodes finished by this row.
         """
@@ -148,14 +152,23 @@ class EpisodeRecorder:
         for ep in list(self.open):
             if ep.end_tick is not None and tick > ep.end_tick:
                 done.append(self._finish(ep))      # later rows: its last ones are lost
-        ep = next((e for e in self.open if e.start_tick <= tick
-                   and (e.end_tick is None or tick <= e.end_tick)), None)
+        sim_ep = fields.pop("episode", None)
+        if sim_ep is not None:
+            # the row says which episode it shows (camera meta): exact even when a row of
+            # the next episode arrives before this episode's end marker
+            ep = next((e for e in self.open if e.info.get("episode") == sim_ep), None)
+            stale = ep is None and sim_ep in self.started_ids
+        else:
+            ep = next((e for e in self.open if e.start_tick <= tick
+                       and (e.end_tick is None or tick <= e.end_tick)), None)
+            stale = ep is None and bool(self.open) and \
+                tick < max(e.start_tick for e in self.open)
         if ep is None:
-            if self.open and tick < max(e.start_tick for e in self.open):
-                self.outside += 1                  # before the current episode: stale
+            if stale:
+                self.outside += 1                  # of an episode already finished
             else:
                 # maybe the next episode's start marker is still in flight: hold a few rows
-                self.orphans.append((tick, fields))
+                self.orphans.append((tick, {**fields, "episode": sim_ep}))
                 if len(self.orphans) > self.max_orphans:
                     self.orphans.pop(0)
                     self.outside += 1
