@@ -147,6 +147,12 @@ def test_index_add_is_atomic_and_numbering_resumes(tmp_path, monkeypatch):
         idx2.add(make_entry(p1))
     with pytest.raises(ValueError, match="task"):
         DatasetIndex(tmp_path, "arm")
+    # a crash between an episode's rename and its index entry: the next session adopts it
+    p2 = idx2.path_for(2)
+    write_episode(p2, frames=3)
+    (tmp_path / "episode_0003.h5").write_bytes(b"not hdf5")    # unreadable: left alone
+    assert DatasetIndex(tmp_path).adopt_unindexed() == ["episode_0002.h5"]
+    assert len(DatasetIndex(tmp_path).episodes()) == 3
 
 
 def test_joiner_completes_rows_and_drops_ticks_that_cannot_complete():

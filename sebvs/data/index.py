@@ -90,6 +90,29 @@ class DatasetIndex:
         self.data["episodes"].append(dict(entry))
         write_json_atomic(self.path, self.data)
 
+    def adopt_unindexed(self) -> list[str]:
+        """Index finished episode files that the index lacks; returns their names.
+
+        A file gets its final name only after it was completely written and fsynced, so one
+        missing from the index was cut off by a crash between the rename and ``add``: it is
+        whole, and adopting it keeps "a crash loses at most the episode in progress" true.
+        """
+        if not self.root.is_dir():
+            return []
+        listed = {e["file"] for e in self.data["episodes"]}
+        adopted = []
+        for p in sorted(self.root.iterdir()):
+            m = EPISODE_RE.match(p.name)
+            if not m or m.group(2) or p.name in listed:
+                continue
+            try:
+                entry = make_entry(p)
+            except Exception:       # unreadable: leave it for `sebvs data check` to report
+                continue
+            self.add(entry)
+            adopted.append(p.name)
+        return adopted
+
     def next_episode_number(self) -> int:
         """One past the highest number in the index or on disk (``.partial`` files included,
         so a lost episode's file is never overwritten by a new recording)."""

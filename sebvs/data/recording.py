@@ -96,6 +96,9 @@ class EpisodeRecorder:
                  max_orphans: int = 32):
         self.root = Path(root)
         self.index = DatasetIndex(self.root, task)
+        for name in self.index.adopt_unindexed():
+            log.warning("%s: finished but not indexed (a crash after its rename); indexed now",
+                        name)
         self.task = task or self.index.task
         self.compression = compression
         self.base_attrs = dict(base_attrs or {})
