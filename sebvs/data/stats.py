@@ -25,6 +25,8 @@ class EpisodeStats:
     labelled: int
     events: int                     # ON + OFF counts summed over the episode (-1: no events)
     mean_target: np.ndarray         # mean of the target over the episode
+    mean_abs_v: float = float("nan")    # nav: mean |v| command (speed, either direction)
+    robot_speed: float = float("nan")   # mean measured base speed, m/s (nav, from truth/robot)
 
 
 @dataclass
@@ -93,6 +95,14 @@ def collect(root: str | Path) -> DatasetStats:
             eps.append(EpisodeStats(name, len(ep), sim_s, int(finite.sum()), events,
                                     y[finite].mean(axis=0) if finite.any()
                                     else np.full(y.shape[1], np.nan)))
+            if ep.task == "nav" and finite.any():
+                eps[-1].mean_abs_v = float(np.abs(y[finite, 0]).mean())
+            if "robot" in ep.truth and len(t) > 1:
+                xy = ep.truth["robot"][:, :2]
+                step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+                ok = np.isfinite(step) & (np.diff(t) > 0)
+                if ok.any():
+                    eps[-1].robot_speed = float(step[ok].sum() / np.diff(t)[ok].sum())
             targets.append(y[finite])
     st = DatasetStats(root, task or "nav", eps)
     st.targets = np.concatenate(targets) if targets else np.zeros((0, 2), np.float32)
@@ -115,8 +125,14 @@ def plot(st: DatasetStats, path: str | Path) -> None:
                title=f"control vectors ({len(y)} commands)", xlim=(-1.05, 1.05),
                ylim=(-1.05, 1.05))
         ax = axes[1]
-        ax.bar(n, [e.mean_target[0] for e in st.episodes])
-        ax.set(xlabel="episode", ylabel="mean v", title="mean forward speed per episode")
+        ax.bar(n, [e.mean_abs_v for e in st.episodes], label="mean |v| command")
+        ax.set(xlabel="episode", ylabel="mean |v| command", title="mean speed per episode")
+        speeds = [e.robot_speed for e in st.episodes]
+        if np.isfinite(speeds).any():
+            # the commanded speed, and what the base did (the ground truth's robot pose)
+            ax2 = ax.twinx()
+            ax2.plot(n, speeds, "o-", color="tab:red", label="measured m/s")
+            ax2.set_ylabel("measured base speed (m/s)", color="tab:red")
     else:
         ax = axes[0]
         sc = ax.scatter(y[:, 0], y[:, 1], s=4, c=y[:, 2], cmap="viridis", alpha=0.5)
@@ -127,6 +143,9 @@ def plot(st: DatasetStats, path: str | Path) -> None:
         ax.scatter(y[:, 0], y[:, 2], s=4, alpha=0.5)
         ax.set(xlabel="x (m)", ylabel="z (m)", title="workspace, side view")
     ax = axes[2]
+    if all(e.events < 0 for e in st.episodes):
+        ax.text(0.5, 0.5, "no event frames recorded\n(RGB-only topology)", ha="center",
+                va="center", transform=ax.transAxes)
     ax.bar(n, [max(e.events, 0) for e in st.episodes], color="tab:orange")
     ax.set(xlabel="episode", ylabel="ON + OFF events", title="accumulated events per episode")
     fig.suptitle(f"{st.root.name}: {len(st.episodes)} episodes, {st.frames} frames, "
