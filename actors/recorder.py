@@ -4,7 +4,8 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
   rgb      camera: arrays["rgb"] (H, W, 3) uint8, meta control (samples with control=False,
            between ticks, are skipped), truth (privileged ground truth, kept per frame)
   events   accumulator: arrays["frame"] (2, H, W) counts; optional raw arrays x, y, t, p;
-           meta event_scale / event_offset / emulator (stored as file attributes)
+           meta event_scale (or scale) / event_offset (or offset) / emulator (or params):
+           the event-to-RGB pixel mapping and emulator settings, stored as file attributes
   action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
@@ -28,7 +29,8 @@ from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
 from sebvs.runtime import Actor, Message
 
 STREAMS = ("rgb", "events", "action")
-EVENT_ATTRS = ("event_scale", "event_offset", "emulator")
+# file attribute <- accumulator meta key (either spelling)
+EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params"}
 
 
 class Recorder(Actor):
@@ -124,7 +126,9 @@ class Recorder(Actor):
         raw = None
         if self.params.raw_events and all(k in msg.arrays for k in "xytp"):
             raw = {k: np.array(msg.arrays[k]) for k in "xytp"}
-        attrs = {k: msg.meta[k] for k in EVENT_ATTRS if k in msg.meta}
+        m = msg.meta
+        attrs = {k: m[k] if k in m else m[alt] for k, alt in EVENT_ATTRS.items()
+                 if k in m or alt in m}
         self._take("events", msg, {"frame": np.array(msg.arrays["frame"]), "raw": raw,
                                    "attrs": attrs})
 
