@@ -29,10 +29,10 @@ from sebvs.policy.inputs import MODALITIES, Normalisation, channels, model_input
 from sebvs.policy.model import ERP, count_parameters  # noqa: E402
 
 
-def _timed(fn, budget_s: float, min_iter: int, max_iter: int) -> np.ndarray:
+def _timed(fn, budget_s: float, min_iter: int, max_iter: int, warm: int = 2) -> np.ndarray:
     """Call fn repeatedly for about budget_s (bounded iterations); returns ms per call."""
-    fn()
-    fn()   # warm-up: first calls allocate
+    for _ in range(warm):   # first calls allocate
+        fn()
     out = []
     end = time.perf_counter() + budget_s
     while len(out) < max_iter and (len(out) < min_iter or time.perf_counter() < end):
@@ -42,7 +42,8 @@ def _timed(fn, budget_s: float, min_iter: int, max_iter: int) -> np.ndarray:
     return np.asarray(out)
 
 
-def bench_inference(modality: str, size: int, threads: int, budget_s: float) -> dict:
+def bench_inference(modality: str, size: int, threads: int, budget_s: float,
+                    min_iter: int = 10) -> dict:
     torch.set_num_threads(threads)
     cv2.setNumThreads(threads)     # as the policy actor does
     torch.manual_seed(0)
@@ -53,7 +54,7 @@ def bench_inference(modality: str, size: int, threads: int, budget_s: float) -> 
         with torch.inference_mode():
             model(x)
 
-    ms = _timed(step, budget_s, min_iter=10, max_iter=5000)
+    ms = _timed(step, budget_s, min_iter=min_iter, max_iter=5000)
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (640, 640, 3), dtype=np.uint8)
     ev = rng.integers(0, 4, (2, 640, 640), dtype=np.uint8)
@@ -79,7 +80,7 @@ def bench_training(size: int, batch: int, threads: int, steps: int) -> dict:
         loss.backward()
         opt.step()
 
-    ms = _timed(step, 0.0, min_iter=steps, max_iter=steps)
+    ms = _timed(step, 0.0, min_iter=steps, max_iter=steps, warm=1)
     per_batch = float(np.median(ms))
     return {"size": size, "batch": batch, "threads": threads, "modality": "rgb+event",
             "ms_per_batch": round(per_batch, 2), "samples_per_s": round(batch * 1e3 / per_batch, 1),
@@ -102,7 +103,8 @@ def main(argv=None) -> int:
     for size in sizes:
         for t in threads:
             for m in MODALITIES:
-                r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5))
+                r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5),
+                                    min_iter=5 if args.quick and size > 320 else 10)
                 inference.append(r)
                 print(f"inference {m:>9} {size:>4}px {t} thr: p50 {r['p50_ms']:.3f} ms  "
                       f"p99 {r['p99_ms']:.3f} ms  (prep {r['prep_ms_from_640']:.3f} ms)",

@@ -17,6 +17,7 @@ the actor, so a policy always sees inputs prepared the way it was trained.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 
 import cv2
@@ -79,17 +80,24 @@ def event_input(events: np.ndarray, norm: Normalisation) -> np.ndarray:
     """Event counts uint8 [2, H, W] (ON, OFF) -> float32 [2, S, S] in [0, 1]."""
     if events.ndim != 3 or events.shape[0] != 2:
         raise ValueError(f"events must be [2, H, W] (ON, OFF counts), got {list(events.shape)}")
+    table = _event_table(norm.event_clip)
     out = np.empty((2, norm.size, norm.size), np.float32)
     for c in range(2):
-        # per polarity, on contiguous 2-D planes: cv2.min keeps uint8 and is ~10x faster
-        # than np.minimum here, and no channels-last transpose copy is needed
+        # per polarity on a contiguous 2-D plane: one table lookup clips, scales and widens
+        # to float32 (4x faster than min + astype + multiply), then the area resize
         plane = np.ascontiguousarray(events[c])
         if plane.dtype != np.uint8:
-            plane = np.minimum(plane, norm.event_clip).astype(np.uint8)
-        clipped = cv2.min(plane, norm.event_clip).astype(np.float32)
-        out[c] = _resize(clipped, norm.size)
-    out *= 1.0 / norm.event_clip
+            plane = np.minimum(plane, 255).astype(np.uint8)
+        out[c] = _resize(cv2.LUT(plane, table), norm.size)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _event_table(clip: int) -> np.ndarray:
+    """uint8 count -> min(count, clip) / clip, as a 256-entry float32 lookup table."""
+    if not 1 <= clip <= 255:
+        raise ValueError(f"event_clip must be in 1..255, got {clip}")
+    return (np.minimum(np.arange(256), clip) / clip).astype(np.float32)
 
 
 def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,
