@@ -189,8 +189,9 @@ class EpisodeRecorder:
                  "seed": info.get("seed", ""), "sim_episode": info.get("episode", "")}
             ep.writer = EpisodeWriter(self.index.path_for(ep.number), task, a,
                                       compression=self.compression)
-        if attrs:
+        if attrs and attrs != ep.extra_attrs:      # the accumulator repeats them every tick
             ep.writer.set_attrs(attrs)
+            ep.extra_attrs = attrs
         ep.writer.append(tick=tick, **fields)
         ep.last_tick = tick
         if ep.end_tick is not None and tick >= ep.end_tick:
