@@ -117,3 +117,62 @@ def test_rgb_only_topology_refuses_event_modalities(tmp_path, ckpts):
         assert not ctl(sup, "policy", cmd="set", key="directory", value="/x")["ok"]
     finally:
         sup.stop()
+
+
+class _Node:
+    """Stands in for the runtime: records what the actor emits and publishes."""
+
+    def __init__(self):
+        self.sent, self.events = [], []
+
+    def emit(self, output, arrays, *, meta=None, t_sim=None, tick=None, parent=None):
+        self.sent.append((tick, meta["modality"], {k: v.copy() for k, v in arrays.items()}))
+
+    def event(self, kind, fields):
+        self.events.append((kind, fields))
+
+
+def _msg(stream, tick, array):
+    from sebvs.runtime.wire import Message
+    return Message(topic=f"src/{stream}", source="src", output=stream, seq=tick, t_sim=tick / 10,
+                   tick=tick, meta={}, arrays={"rgb" if stream == "rgb" else "frame": array},
+                   stamps=[])
+
+
+def test_swap_order_in_process(ckpts):
+    """Deterministic swap semantics: the tick after the last acted one, buffered frames used."""
+    import asyncio
+
+    import numpy as np
+
+    from actors.policy import Policy
+    node = _Node()
+    actor = Policy("policy", Policy.Params(directory=str(ckpts), modality="rgb"),
+                   connected=frozenset({"rgb", "events"}), node=node)
+    rgb, ev = np.zeros((32, 32, 3), np.uint8), np.zeros((2, 32, 32), np.uint8)
+
+    async def scenario():
+        await actor.setup()
+        await actor.on_rgb(_msg("rgb", 0, rgb))          # rgb acts at once
+        await actor.on_events(_msg("events", 0, ev))
+        await actor.on_events(_msg("events", 1, ev))     # tick 1: events first, rgb not yet
+        reply = await actor.control("modality", "event")  # tick 1's events are buffered:
+        assert reply == {"modality": "event", "effective_tick": 1}   # acted on right away
+        await actor.on_rgb(_msg("rgb", 1, rgb))          # stale for tick 1: ignored
+        await actor.on_events(_msg("events", 2, ev))
+        with pytest.raises(ValueError, match="unknown modality"):
+            await actor.control("modality", "thermal")
+        await actor.control("modality", "rgb+event")
+        await actor.on_events(_msg("events", 3, ev))     # waits for rgb 3
+        await actor.on_rgb(_msg("rgb", 3, rgb))
+
+    asyncio.run(scenario())
+    assert [(t, m) for t, m, _ in node.sent] == [(0, "rgb"), (1, "event"), (2, "event"),
+                                                 (3, "rgb+event")]
+    assert all(a["action"].shape == (2,) and a["action"].dtype == np.float32
+               for _, _, a in node.sent)
+    swaps = [f for k, f in node.events if k == "modality_swap"]
+    assert swaps == [{"from": "rgb", "to": "event", "effective_tick": 1},
+                     {"from": "event", "to": "rgb+event", "effective_tick": 3}]
+    assert sum(k == "inference" for k, _ in node.events) == 4
+    assert actor.stats()["skipped_ticks"] == 0
