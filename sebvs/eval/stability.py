@@ -21,7 +21,8 @@ The grids (QUICK for the test suite, FULL for tools/stability_sweep.py):
                x integrator x timestep. Our own minimal MJCF: the sweep does not wait for the
                arm scene, and its plausibility is easy to state.
   dvs          emulator extremes (black, saturated, alternating frames, dt 0 and 100 s,
-               cutoff extremes), added by sebvs.eval.dvs_cases when sebvs.dvs exists.
+               cutoff extremes, a time step backwards), sebvs/eval/dvs_cases.py, present
+               once sebvs.dvs has its emulator.
 """
 from __future__ import annotations
 
@@ -277,12 +278,8 @@ def summarise(results: list[dict]) -> dict:
 
 def all_cases(grid: str = "quick") -> list[SweepCase]:
     """Physics cases plus the emulator's when sebvs.dvs provides them."""
-    cases = physics_cases(grid)
-    try:
-        from . import dvs_cases
-    except ImportError:
-        return cases
-    return cases + dvs_cases.cases(grid)
+    from . import dvs_cases
+    return physics_cases(grid) + dvs_cases.cases(grid)
 
 
 def run_case(case: SweepCase) -> dict:
