@@ -134,3 +134,47 @@ def test_sebvs_record_runs_to_n_episodes_and_resumes(tmp_path, capsys):
     with open_episode(idx.episode_paths()[0]) as ep:
         assert ep.attrs["topology"]["content"]["actors"]["source"]["frames"] == 8
     assert check_dataset(out).ok
+
+
+def test_kill_9_of_the_whole_run_keeps_finished_episodes(tmp_path):
+    """`sebvs record` and every actor killed at once: indexed episodes stay whole."""
+    import json
+    import subprocess
+    import sys
+    out, runs = tmp_path / "ds", tmp_path / "runs"
+    topo = topology(tmp_path, tmp_path / "ignored", frames=100, episodes=0)
+    proc = subprocess.Popen([sys.executable, "-m", "sebvs.cli", "record", str(topo),
+                             "--episodes", "50", "--out", str(out), "--runs-dir", str(runs),
+                             "--quiet"], cwd=Path(__file__).resolve().parents[1],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pids = []
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            idx = out / "index.json"
+            if idx.exists() and len(json.loads(idx.read_text())["episodes"]) >= 2 \
+                    and list(out.glob("*.partial")):
+                break
+            time.sleep(0.02)
+        info = json.loads(next(runs.glob("*/run.json")).read_text())
+        pids = [a["pid"] for a in info["actors"].values()]
+        for pid in [proc.pid] + pids:
+            os.kill(pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.monotonic() + 5
+    while any(Path(f"/proc/{p}").exists() and
+              Path(f"/proc/{p}/stat").read_text().split()[2] != "Z" for p in pids) \
+            and time.monotonic() < deadline:
+        time.sleep(0.05)
+    for shm in Path("/dev/shm").glob(f"sebvs-{info['run_id']}-*"):
+        shm.unlink()        # nobody was left to remove the rings and sockets
+    import shutil
+    import tempfile
+    shutil.rmtree(Path(tempfile.gettempdir()) / f"sebvs-{info['run_id']}", ignore_errors=True)
+    rep = check_dataset(out)
+    assert rep.episodes >= 2 and not rep.problems and len(rep.lost) <= 1
+    for path in DatasetIndex(out).episode_paths():
+        with open_episode(path) as ep:
+            assert len(ep) == 100
