@@ -1,6 +1,11 @@
 """The recorder actor in real runs: N episodes, joined rows, RGB-only, kill -9, `sebvs record`."""
+import json
 import os
+import shutil
 import signal
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -138,9 +143,6 @@ def test_sebvs_record_runs_to_n_episodes_and_resumes(tmp_path, capsys):
 
 def test_kill_9_of_the_whole_run_keeps_finished_episodes(tmp_path):
     """`sebvs record` and every actor killed at once: indexed episodes stay whole."""
-    import json
-    import subprocess
-    import sys
     out, runs = tmp_path / "ds", tmp_path / "runs"
     topo = topology(tmp_path, tmp_path / "ignored", frames=100, episodes=0)
     proc = subprocess.Popen([sys.executable, "-m", "sebvs.cli", "record", str(topo),
@@ -170,8 +172,6 @@ def test_kill_9_of_the_whole_run_keeps_finished_episodes(tmp_path):
         time.sleep(0.05)
     for shm in Path("/dev/shm").glob(f"sebvs-{info['run_id']}-*"):
         shm.unlink()        # nobody was left to remove the rings and sockets
-    import shutil
-    import tempfile
     shutil.rmtree(Path(tempfile.gettempdir()) / f"sebvs-{info['run_id']}", ignore_errors=True)
     rep = check_dataset(out)
     assert rep.episodes >= 2 and not rep.problems and len(rep.lost) <= 1
