@@ -86,6 +86,11 @@ def test_cli_trains_all_modalities_and_plots(tmp_path):
         assert cfg["training"]["plateau"]["factor"] == 0.5
         assert not set(cfg["dataset"]["train_episodes"]) & set(cfg["dataset"]["val_episodes"])
     assert (out / "arm-losses.png").exists()
+    # a dataset of the other task, or none at all, is an error message, not a traceback
+    assert main(["train", "--task", "nav", "--modality", "rgb", "--data", str(data),
+                 "--out", str(out)]) == 2
+    assert main(["train", "--task", "nav", "--modality", "rgb", "--data", str(tmp_path / "no"),
+                 "--out", str(out)]) == 2
 
 
 def test_help_does_not_import_torch():

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 SIZE_PRESETS = {"cpu": 160, "paper": 640}
 
@@ -23,11 +24,19 @@ def _cmd_train(args) -> int:
     from .inputs import MODALITIES, Normalisation
     from .train import train
     modalities = list(MODALITIES) if args.modality == "all" else [args.modality]
-    train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
-          epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
-          num_workers=args.workers, threads=args.threads, val_fraction=args.val_fraction,
-          patience=args.patience, lr=args.lr, device=args.device,
-          norm=Normalisation(size=args.size, event_clip=args.event_clip))
+    if args.size >= 640 and args.device == "cpu":
+        print(f"sebvs train: note: {args.size} px is the paper's GPU preset; on a 2-core CPU "
+              f"one batch of 32 takes ~8 s (tools/bench_policy.py). Use --device cuda, or "
+              f"--size 160.", file=sys.stderr)
+    try:
+        train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
+              epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
+              num_workers=args.workers, threads=args.threads, val_fraction=args.val_fraction,
+              patience=args.patience, lr=args.lr, device=args.device,
+              norm=Normalisation(size=args.size, event_clip=args.event_clip))
+    except (FileNotFoundError, ValueError) as exc:   # bad data or settings: say so, no trace
+        print(f"sebvs train: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
