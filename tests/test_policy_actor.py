@@ -1,16 +1,20 @@
 """The policy actor in a real run: actions per tick, live modality swaps, refusals."""
+import asyncio
 import json
 import time
 
+import numpy as np
 import pytest
 import torch
 import zmq
 
+from actors.policy import Policy
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.inputs import Normalisation, channels
 from sebvs.policy.model import ERP
 from sebvs.runtime.supervisor import Supervisor, control_request
 from sebvs.runtime.topology import load_topology
+from sebvs.runtime.wire import Message
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +137,6 @@ class _Node:
 
 
 def _msg(stream, tick, array):
-    from sebvs.runtime.wire import Message
     return Message(topic=f"src/{stream}", source="src", output=stream, seq=tick, t_sim=tick / 10,
                    tick=tick, meta={}, arrays={"rgb" if stream == "rgb" else "frame": array},
                    stamps=[])
@@ -141,11 +144,6 @@ def _msg(stream, tick, array):
 
 def test_swap_order_in_process(ckpts):
     """Deterministic swap semantics: the tick after the last acted one, buffered frames used."""
-    import asyncio
-
-    import numpy as np
-
-    from actors.policy import Policy
     node = _Node()
     actor = Policy("policy", Policy.Params(directory=str(ckpts), modality="rgb"),
                    connected=frozenset({"rgb", "events"}), node=node)

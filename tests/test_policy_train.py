@@ -2,12 +2,14 @@
 the lazy dataset and the `sebvs train` command."""
 import csv
 import json
+import subprocess
 import sys
 
 import numpy as np
 import pytest
 import torch
 
+from sebvs.cli import main
 from sebvs.policy.dataset import EpisodeFrames, load_index, split_episodes
 from sebvs.policy.inputs import Normalisation
 from sebvs.policy.train import train
@@ -73,7 +75,6 @@ def test_dataset_reads_frames_lazily(tmp_path):
 
 
 def test_cli_trains_all_modalities_and_plots(tmp_path):
-    from sebvs.cli import main
     data = make_dataset(tmp_path / "data", episodes=4, frames=8, task="arm")
     out = tmp_path / "out"
     assert main(["train", "--task", "arm", "--modality", "all", "--data", str(data),
@@ -94,7 +95,6 @@ def test_cli_trains_all_modalities_and_plots(tmp_path):
 
 
 def test_help_does_not_import_torch():
-    import subprocess
     code = ("import sys; from sebvs.cli import build_parser; build_parser(); "
             "import actors.policy; print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
