@@ -27,7 +27,7 @@ Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
 
 --quick: shorter runs, one timing repeat, a 5 kHz event reference and 0.4 s of motion,
 smaller policy sizes; finishes within 60 s on this machine class (the wall time is in
-summary.json). Without --quick: medians of 3 timing repeats.
+summary.json). Without --quick: medians of 5 timing repeats.
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def settings(quick: bool) -> dict:
         return {"nav_seconds": 2.0, "belt_seconds": 1.0, "conveyor_seconds": 1.0, "repeats": 1,
                 "ev_rates": (50, 100, 200, 500, 1000), "ev_ref_hz": 5000, "ev_seconds": 0.4,
                 "pol_sizes": (32, 64), "pol_episodes": 8, "pol_frames": 30, "pol_epochs": 3}
-    return {"nav_seconds": 5.0, "belt_seconds": 3.0, "conveyor_seconds": 3.0, "repeats": 3,
+    return {"nav_seconds": 5.0, "belt_seconds": 3.0, "conveyor_seconds": 3.0, "repeats": 5,
             "ev_rates": (50, 100, 200, 500, 1000, 2000), "ev_ref_hz": 10000,
             "ev_seconds": 1.5, "pol_sizes": (64, 160), "pol_episodes": 16,
             "pol_frames": 60, "pol_epochs": 6}

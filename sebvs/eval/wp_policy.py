@@ -3,7 +3,8 @@
 One point per (modality, input size): error = mean absolute action error (mean over
 frames and action components, in the action's own units: [-1, 1] commands for nav) on
 episodes the model never trained on; seconds = median wall time of one PolicySet.act call
-(input preparation + batch-1 inference, as the policy actor does per tick), in seconds.
+(input preparation + batch-1 inference, as the policy actor does per tick), in seconds,
+timed for all variants in interleaved rounds once all are loaded (interleaved_latency).
 
 Two sources:
   real       --data DIR (recorded dataset) and --checkpoints DIR (``<task>-<modality>.pt``
@@ -123,7 +124,24 @@ def evaluate(pt: str | Path, data: str | Path, episodes: list[str] | None = None
             ep.close()
     return {"modality": modality, "size": int(cfg["size"]), "error": float(np.mean(errs)),
             "seconds": statistics.median(times), "p90_seconds": float(np.percentile(times, 90)),
-            "frames": len(errs)}
+            "frames": len(errs), "policy": policies, "obs": obs}
+
+
+def interleaved_latency(runs: list[dict], rounds: int = 7, calls: int = 10) -> None:
+    """Re-time every evaluated policy in turn, `rounds` times `calls` calls each, and set
+    its "seconds" (median) and "p90_seconds": on shared cores a load spike then hits all
+    variants alike instead of whichever happened to be timed during it."""
+    times: list[list[float]] = [[] for _ in runs]
+    for _ in range(rounds):
+        for i, r in enumerate(runs):
+            m = r["modality"]
+            for _ in range(calls):
+                t0 = time.perf_counter()
+                r["policy"].act(m, **r["obs"])
+                times[i].append(time.perf_counter() - t0)
+    for r, ts in zip(runs, times):
+        r["seconds"] = statistics.median(ts)
+        r["p90_seconds"] = float(np.percentile(ts, 90))
 
 
 def _targets(data: Path, task: str, files: list[str] | None = None) -> np.ndarray:
@@ -147,13 +165,14 @@ def mean_baseline(train: str | Path, held: str | Path, task: str = "nav",
 def real_points(data: str | Path, checkpoints: str | Path) -> list[dict]:
     """Every ``*.pt`` in `checkpoints` scored on its own validation episodes in `data`."""
     from sebvs.policy.checkpoint import read_config
-    points = []
+    points, runs = [], []
     for pt in sorted(Path(checkpoints).glob("*.pt")):
         cfg = read_config(pt)
         val = (cfg.get("dataset") or {}).get("val_episodes") or None
         if val and not all((Path(data) / v).exists() for v in val):
             val = None
         r = evaluate(pt, data, val)
+        runs.append(r)
         tr = (cfg.get("dataset") or {}).get("train_episodes") or None
         base = mean_baseline(data, data, cfg["task"], tr if val else None, val) \
             if (val and tr) else None
@@ -162,7 +181,14 @@ def real_points(data: str | Path, checkpoints: str | Path) -> list[dict]:
                        "frames": r["frames"], "source": "real", "checkpoint": str(pt),
                        "baseline_error": base,
                        "held_out": "validation split" if val else "all episodes of --data"})
+    _retime(points, runs)
     return points
+
+
+def _retime(points: list[dict], runs: list[dict]) -> None:
+    interleaved_latency(runs)
+    for p, r in zip(points, runs):
+        p["seconds"], p["p90_seconds"] = r["seconds"], r["p90_seconds"]
 
 
 def synthetic_points(work: str | Path, sizes=(32, 64), modalities=("rgb", "event", "rgb+event"),
@@ -176,7 +202,7 @@ def synthetic_points(work: str | Path, sizes=(32, 64), modalities=("rgb", "event
     work = Path(work)
     prev = torch.get_num_threads()
     torch.set_num_threads(1)     # shared cores; the latency axis is per single thread
-    points = []
+    points, runs = [], []
     try:
         for size in sizes:
             data = make_synthetic(work / f"data{size}", episodes, frames, size, seed)
@@ -188,6 +214,7 @@ def synthetic_points(work: str | Path, sizes=(32, 64), modalities=("rgb", "event
                 train(data, ck, "nav", [m], progress=False, log=log, epochs=epochs,
                       lr=1e-3, norm=Normalisation(size=size), threads=1, patience=epochs)
                 r = evaluate(ck / f"nav-{m}.pt", held)
+                runs.append(r)
                 points.append({"method": m, "setting": size, "error": r["error"],
                                "seconds": r["seconds"], "p90_seconds": r["p90_seconds"],
                                "frames": r["frames"], "source": "synthetic",
@@ -196,6 +223,7 @@ def synthetic_points(work: str | Path, sizes=(32, 64), modalities=("rgb", "event
                                "epochs": epochs})
                 if progress is not None:
                     progress(1)
+        _retime(points, runs)
     finally:
         torch.set_num_threads(prev)
     return points
