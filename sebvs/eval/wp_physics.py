@@ -6,7 +6,8 @@ the numerical method. A run integrates `seconds` of simulated time and reports t
 position of one tracked body; its error is the distance (m) to the same body in the
 reference run (rk4 at REFERENCE_DT). Run time is wall seconds per simulated second of the
 sim actor's per-step work: scripted() + mj_step + StabilityMonitor.check (the median of
-`repeats` runs; the first run also gives the error, all runs are identical).
+`repeats` runs, taken in rounds over all settings; runs are deterministic, so the first
+also gives the error).
 
 A run is *diverged* when the monitor names a reason or the state is not finite; its error
 is None (work_precision.plot_study draws it as a cross).
@@ -163,28 +164,34 @@ def reference_spread(case: Case, seconds: float, reference=REFERENCE) -> float:
 def physics_study(case: Case, seconds: float, integrators=INTEGRATORS, timesteps=TIMESTEPS,
                   repeats: int = 1, reference=REFERENCE, progress=None) -> list[dict]:
     """Points {"method", "setting" (dt s), "error" (m), "seconds" (wall per sim s),
-    "diverged", "reason", "case"} for every integrator x timestep, plus one point for the
-    reference itself (method "reference", error None: it defines zero)."""
+    "diverged", "reason", "case", "reference", "timing_runs"} for every integrator x
+    timestep; the reference itself is not a point (it defines zero error)."""
     ref = run_case(case, reference[0], reference[1], seconds)
     if ref["pos"] is None:
         raise RuntimeError(f"{case.name}: the reference {reference} diverged: {ref['reason']}")
-    points = []
+    points, walls = [], []
     for integ in integrators:
         for dt in timesteps:
-            walls, first = [], None
-            for _ in range(max(1, repeats)):
-                r = run_case(case, integ, dt, seconds)
-                first = first or r
-                walls.append(r["wall"] / max(r["sim_s"], 1e-12))
-                if r["reason"]:
-                    break                          # a diverged run is not timed again
-            diverged = first["pos"] is None
-            err = None if diverged else float(np.linalg.norm(first["pos"] - ref["pos"]))
+            r = run_case(case, integ, dt, seconds)
+            walls.append([r["wall"] / max(r["sim_s"], 1e-12)])
+            diverged = r["pos"] is None
+            err = None if diverged else float(np.linalg.norm(r["pos"] - ref["pos"]))
             points.append({"method": integ, "setting": dt, "error": err,
-                           "seconds": statistics.median(walls), "diverged": diverged,
-                           "reason": first["reason"] or "", "case": case.name,
+                           "diverged": diverged, "reason": r["reason"] or "",
+                           "case": case.name,
                            "reference": f"{reference[0]} dt={reference[1]:g}s",
                            "sim_seconds": seconds})
             if progress is not None:
                 progress(1)
+    # Timing repeats in rounds over every setting (not back to back): on shared cores a
+    # load spike then slows all settings alike. Runs are deterministic, so only the wall
+    # time changes; a diverged run is not timed again.
+    for _ in range(max(1, repeats) - 1):
+        for p, w in zip(points, walls):
+            if not p["diverged"]:
+                r = run_case(case, p["method"], p["setting"], seconds)
+                w.append(r["wall"] / max(r["sim_s"], 1e-12))
+    for p, w in zip(points, walls):
+        p["seconds"] = statistics.median(w)
+        p["timing_runs"] = len(w)
     return points
