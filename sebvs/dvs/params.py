@@ -1,0 +1,67 @@
+"""Emulator parameters and presets (the paper's Table 2 values are the `paper` preset)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+
+@dataclass(frozen=True)
+class EmulatorParams:
+    pos_thres: float = 0.3            # ON contrast threshold, log units
+    neg_thres: float = 0.3            # OFF contrast threshold, log units
+    sigma_thres: float = 0.09         # pixel-to-pixel threshold spread (fixed-pattern)
+    cutoff_hz: float = 15.0           # photoreceptor low-pass at full intensity; 0: off
+    leak_rate_hz: float = 0.0         # ON leak events per pixel per second
+    leak_jitter_fraction: float = 0.1 # spread of the per-pixel leak rate
+    shot_noise_rate_hz: float = 0.0   # noise events per pixel per second (in the dark)
+    noise_rate_cov_decades: float = 0.1  # per-pixel spread of the shot-noise rate
+    refractory_period_s: float = 0.0  # a pixel cannot fire again within this
+    downsample: float = 0.5           # input resize factor before emulation
+    blur: bool = True                 # 3x3 Gaussian before emulation
+    seed: int = 0
+
+    def validate(self) -> "EmulatorParams":
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name in ("blur",):
+                if not isinstance(v, bool):
+                    raise ValueError(f"emulator: {f.name} must be true or false, got {v!r}")
+                continue
+            if f.name == "seed":
+                if not isinstance(v, int) or isinstance(v, bool):
+                    raise ValueError(f"emulator: seed must be an integer, got {v!r}")
+                continue
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or v != v \
+                    or v in (float("inf"), float("-inf")):
+                raise ValueError(f"emulator: {f.name} must be a finite number, got {v!r}")
+            if v < 0:
+                raise ValueError(f"emulator: {f.name} must not be negative, got {v!r}")
+        if self.pos_thres <= 0 or self.neg_thres <= 0:
+            raise ValueError("emulator: pos_thres and neg_thres must be positive")
+        if not 0 < self.downsample <= 1:
+            raise ValueError(f"emulator: downsample must be in (0, 1], got {self.downsample}")
+        return self
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+PRESETS: dict[str, EmulatorParams] = {
+    # Table 2 of the paper (v2e settings of the SEBVS package)
+    "paper": EmulatorParams(),
+    # the ideal pixel: no mismatch, no filter, no noise
+    "clean": EmulatorParams(sigma_thres=0.0, cutoff_hz=0.0),
+    # a dim, leaky, noisy sensor (v2e's "noisy" spirit: shot noise, leak, refractory)
+    "noisy": EmulatorParams(shot_noise_rate_hz=5.0, leak_rate_hz=0.1,
+                            refractory_period_s=0.0005, noise_rate_cov_decades=0.5),
+}
+
+
+def preset(name: str, **overrides) -> EmulatorParams:
+    """A preset with some fields overridden; ValueError on an unknown name or key."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown emulator preset {name!r} (one of {', '.join(PRESETS)})")
+    known = {f.name for f in fields(EmulatorParams)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"unknown emulator parameter {unknown[0]!r}")
+    return replace(PRESETS[name], **overrides).validate()
