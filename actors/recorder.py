@@ -6,6 +6,9 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
   events   accumulator: arrays["frame"] (2, H, W) counts; optional raw arrays x, y, t, p;
            meta event_scale (or scale) / event_offset (or offset) / emulator (or params):
            the event-to-RGB pixel mapping and emulator settings, stored as file attributes
+  raw      emulator (optional, used with raw_events = true): arrays["events"] structured
+           (x, y, t, p) packets; the packets up to and including a control tick's packet
+           are that tick's raw events (the accumulator's window ends there too)
   action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
@@ -28,13 +31,34 @@ import numpy as np
 from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
 from sebvs.runtime import Actor, Message
 
-STREAMS = ("rgb", "events", "action")
+STREAMS = ("rgb", "events", "raw", "action")
 # file attribute <- accumulator meta key (either spelling)
-EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params"}
+EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params",
+               "event_sensor": "sensor", "event_output": "output",
+               "event_representation": "representation", "event_window_s": "window_s"}
+
+
+RAW_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])
+
+
+def emulator_params(topology: dict) -> dict:
+    """The emulator actor's settings in a topology (preset resolved when sebvs.dvs can)."""
+    for actor in topology.get("actors", {}).values():
+        if str(actor.get("run", "")).endswith(":Emulator"):
+            name, over = actor.get("preset", "paper"), actor.get("overrides", {})
+            out = {"preset": name, "overrides": over}
+            try:
+                import dataclasses
+                from sebvs.dvs.params import preset
+                out["resolved"] = dataclasses.asdict(preset(name, **over))
+            except Exception:        # an unknown preset fails the emulator itself, not us
+                pass
+            return out
+    return {}
 
 
 class Recorder(Actor):
-    inputs = ("rgb", "events", "action", "episode")
+    inputs = ("rgb", "events", "raw", "action", "episode")
 
     @dataclass
     class Params:
@@ -52,7 +76,9 @@ class Recorder(Actor):
         missing = {"rgb", "action", "episode"} - self.connected
         if missing:
             raise ValueError(f"recorder needs inputs {sorted(missing)} connected")
-        self.streams = frozenset(s for s in STREAMS if s in self.connected)
+        self.streams = frozenset(s for s in STREAMS if s in self.connected
+                                 and (s != "raw" or p.raw_events))
+        self.raw_packets: list[np.ndarray] = []
         self.joiner = TickJoiner(self.streams, p.max_pending)
         topo = {}
         if p.topology:
@@ -60,9 +86,13 @@ class Recorder(Actor):
                 topo = {"file": p.topology, "content": tomllib.loads(Path(p.topology).read_text())}
             except (OSError, tomllib.TOMLDecodeError) as exc:
                 topo = {"file": p.topology, "error": str(exc)}
+        base = {"topology": topo, "streams": sorted(self.streams)}
+        emulator = emulator_params(topo.get("content", {}))
+        if emulator:
+            base["emulator"] = emulator
         self.rec = EpisodeRecorder(p.out, None if p.task == "auto" else p.task,
                                    compression=p.compression, grace_s=p.grace_s,
-                                   base_attrs={"topology": topo, "streams": sorted(self.streams)})
+                                   base_attrs=base)
         self.skipped = {"no_tick": 0, "not_control": 0}
         self._warned = 0
         self.log.info("recording %s into %s (next episode %d)", sorted(self.streams), p.out,
@@ -108,6 +138,8 @@ class Recorder(Actor):
                 fields["raw_events"] = row["events"]["raw"]
             if row["events"]["attrs"]:
                 fields["attrs"] = row["events"]["attrs"]
+        if "raw" in row:
+            fields["raw_events"] = row["raw"]["raw"]
         self._finished(self.rec.row(tick, **fields))
 
     async def on_rgb(self, msg: Message) -> None:
@@ -131,6 +163,18 @@ class Recorder(Actor):
                  if k in m or alt in m}
         self._take("events", msg, {"frame": np.array(msg.arrays["frame"]), "raw": raw,
                                    "attrs": attrs})
+
+    async def on_raw(self, msg: Message) -> None:
+        if "raw" not in self.streams:
+            return
+        ev = msg.arrays.get("events")
+        if ev is not None and len(ev):
+            self.raw_packets.append(np.array(ev))          # copy out of shm
+        if msg.meta.get("control") is False:
+            return
+        packets, self.raw_packets = self.raw_packets, []
+        ev = np.concatenate(packets) if packets else np.zeros(0, RAW_DTYPE)
+        self._take("raw", msg, {"raw": {k: ev[k] for k in "xytp"}})
 
     async def on_action(self, msg: Message) -> None:
         key = "action" if "action" in msg.arrays else "pose"

@@ -16,6 +16,9 @@ import numpy as np
 from sebvs.runtime import Actor
 
 
+RAW_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])
+
+
 def expected_action(tick: int, task: str = "nav") -> np.ndarray:
     if task == "nav":
         return np.array([tick / 1000, -tick / 1000], np.float32)
@@ -25,7 +28,7 @@ def expected_action(tick: int, task: str = "nav") -> np.ndarray:
 class DataSource(Actor):
     """Episodes of `frames` control ticks at `rate_hz`, like the sim + camera + accumulator +
     expert chain would deliver them. Emits rgb, events, action (or pose) and episode markers."""
-    outputs = ("rgb", "events", "action", "episode")
+    outputs = ("rgb", "events", "raw", "action", "episode")
 
     @dataclass
     class Params:
@@ -36,7 +39,8 @@ class DataSource(Actor):
         episodes: int = 0             # 0: until stopped
         task: Literal["nav", "arm"] = "nav"
         between: int = 1              # rgb samples with control=False between ticks (skipped)
-        raw_events: int = 0           # raw events per frame (0: none sent)
+        raw_events: int = 0           # raw events per control packet on `raw` (0: none), plus
+                                      # a 2-event packet between ticks, as the emulator's
         episode_meta: bool = True     # rgb meta carries the episode number, as the camera's
 
     async def setup(self) -> None:
@@ -81,9 +85,12 @@ class DataSource(Actor):
                                                       if p.episode_meta else {})})
         ev = {"frame": np.full((2, p.height // 2, p.width // 2), v, np.uint8)}
         if p.raw_events:
-            m = p.raw_events
-            ev.update(x=np.arange(m, dtype=np.uint16), y=np.arange(m, dtype=np.uint16),
-                      t=np.full(m, t * 1000, np.int64), p=np.ones(m, np.int8))
+            # the packet ending at tick t (control), then one after it (belongs to t + 1)
+            for n, control, t_ns in ((p.raw_events, True, t * 1000), (2, False, t * 1000 + 500)):
+                pk = np.zeros(n, RAW_DTYPE)
+                pk["x"], pk["y"], pk["t"], pk["p"] = np.arange(n), 1, t_ns, 1
+                await self.emit("raw", {"events": pk}, tick=t, t_sim=t_sim,
+                                meta={"control": control})
         await self.emit("events", ev, tick=t, t_sim=t_sim,
                         meta={"control": True, "event_scale": 0.5, "event_offset": [0.0, 0.0],
                               "emulator": {"pos_thres": 0.3, "neg_thres": 0.3}})

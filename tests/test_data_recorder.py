@@ -21,8 +21,10 @@ from sebvs.runtime.topology import load_topology
 from tests.data_actors import expected_action
 
 
-def topology(tmp_path, out, *, events=True, task="nav", frames=10, episodes=3, extra=""):
+def topology(tmp_path, out, *, events=True, task="nav", frames=10, episodes=3, extra="",
+             raw=False):
     ev = ', events = "source/events"' if events else ""
+    ev += ', raw = "source/raw"' if raw else ""
     path = tmp_path / "record.toml"
     path.write_text(f"""
 [topology]
@@ -45,7 +47,7 @@ episodes = {episodes}
 def test_recorder_writes_n_episodes_of_joined_rows_and_stops_the_run(tmp_path):
     out = tmp_path / "ds"
     t0 = time.monotonic()
-    run_topology(topology(tmp_path, out, extra="raw_events = 5"), duration_s=20,
+    run_topology(topology(tmp_path, out, extra="raw_events = 5", raw=True), duration_s=20,
                  runs_dir=tmp_path, overrides=["recorder.raw_events=true"])
     assert time.monotonic() - t0 < 15          # the recorder ended the run, not the timeout
     idx = DatasetIndex(out)
@@ -63,7 +65,12 @@ def test_recorder_writes_n_episodes_of_joined_rows_and_stops_the_run(tmp_path):
             np.testing.assert_array_equal(ep.action[:], [expected_action(t) for t in ticks])
             np.testing.assert_array_equal(ep.truth["centroid"][:, 0], ticks)
             assert ep.modality[0] == b"rgb"
-            assert ep.raw_events["offset"][-1] == 50
+            # raw: row k = the packet after tick k - 1 (2 events) + tick k's packet (5)
+            off, t_raw = ep.raw_events["offset"][:], ep.raw_events["t"][:]
+            assert off[-1] == 7 * 10 - (2 if k == 0 else 0)
+            for i, tick in enumerate(ticks):
+                ts = t_raw[off[i]:off[i + 1]]
+                assert (ts == tick * 1000).sum() == 5 and (ts <= tick * 1000).all()
             assert np.isfinite(ep.latency["source->recorder"][:]).all()
             a = ep.attrs
             assert a["seed"] == 1000 + k and a["conditions"] == {"variant": "unit", "k": k}
