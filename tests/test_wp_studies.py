@@ -88,3 +88,17 @@ def test_synthetic_dataset_layout_and_baseline(tmp_path):
     x, y = EpisodeFrames(root, eps, "nav", "rgb+event", Normalisation(size=32))[3]
     assert x.shape == (5, 32, 32) and y.shape == (2,) and (np.abs(y) <= 1).all()
     assert pol.mean_baseline(root, root) > 0
+
+
+# ------------------------------------------------------------------ event study end to end
+def test_event_study_converges_with_the_sampling_rate():
+    from sebvs.eval import wp_events_run
+    cfg = {"ev_rates": (100, 1000), "ev_ref_hz": 2000, "ev_seconds": 0.3}
+    l1, timing, note = wp_events_run.study(cfg, seed=0)
+    assert [p["setting"] for p in l1] == [100, 1000] * len(wp_events_run.PRESETS)
+    for method in wp_events_run.PRESETS:
+        lo, hi = [p for p in l1 if p["method"] == method]
+        assert hi["error"] < lo["error"] and hi["seconds"] > lo["seconds"]
+        assert 0.5 < hi["count_ratio"] < 1.5
+    assert all(p["error"] == p["ts_p90_us"] for p in timing)
+    assert "2000 Hz" in note

@@ -54,6 +54,12 @@ def _frames(kind: str, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
         t[n // 2:] += 100_000_000_000              # a 100 s gap
     elif kind == "backwards":
         t[n // 2] = t[n // 2 - 1] - 1_000_000      # time runs back: must be refused
+    elif kind == "nan":
+        f = f.astype(np.float32)
+        f[n // 2, 3, 3] = np.nan                   # a broken float frame: must be refused
+    elif kind == "reshaped":
+        f = list(f)
+        f[n // 2] = f[n // 2][:-1]                 # one frame a row short: must be refused
     return f, t
 
 
@@ -65,6 +71,8 @@ EXTREMES = {
     "dt0": ("dt0", {}),
     "dt100": ("dt100", {}),
     "backwards": ("backwards", {}),
+    "nan_frame": ("nan", {}),
+    "shape_change": ("reshaped", {}),
     "cutoff0": ("ramp", {"cutoff_hz": 0.0}),
     "cutoff1e6": ("ramp", {"cutoff_hz": 1e6}),
     "sigma_huge": ("ramp", {"sigma_thres": 10.0}),
@@ -84,7 +92,7 @@ def cases(grid: str = "quick") -> list[SweepCase]:
 def check_events(ev: tuple, frames: np.ndarray, t_ns: np.ndarray) -> str | None:
     """None when the events are sane for these frames (see module docstring)."""
     t, x, y, p = ev
-    h, w = frames.shape[1:3]
+    h, w = np.shape(frames[0])[:2]
     if len(t) == 0:
         return None
     if t.dtype != np.int64:
@@ -106,6 +114,7 @@ def check_events(ev: tuple, frames: np.ndarray, t_ns: np.ndarray) -> str | None:
 def run(case: SweepCase) -> dict:
     from . import dvs_adapter
     kind, overrides = EXTREMES[case.params["extreme"]]
+    overrides = {"downsample": 1.0, **overrides}   # frames are at the emulated size
     frames, t_ns = _frames(kind)
     out = {"name": case.name, "kind": "dvs", "params": case.params, "t": None}
     with warnings.catch_warnings(record=True) as caught:
