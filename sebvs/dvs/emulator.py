@@ -41,10 +41,15 @@ LINLOG = np.where(_DN <= LINLOG_BREAK, _DN * math.log(LINLOG_BREAK) / LINLOG_BRE
 BANDWIDTH = ((_DN + 20.0) / 275.0).astype(np.float64)
 
 
+def _lookup(luma: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """table[luma] for uint8 luma; OpenCV's LUT is about 3x faster than numpy indexing."""
+    return cv2.LUT(np.ascontiguousarray(luma), table.reshape(1, 256))
+
+
 def linlog(luma: np.ndarray) -> np.ndarray:
     """Lin-log of 8-bit luma: a table lookup for uint8, the formula for float DN."""
     if luma.dtype == np.uint8:
-        return LINLOG[luma]
+        return _lookup(luma, LINLOG)
     x = luma.astype(np.float64)   # as the table was built: the same value for the same DN
     return np.where(x <= LINLOG_BREAK, x * (math.log(LINLOG_BREAK) / LINLOG_BREAK),
                     np.log(np.maximum(x, LINLOG_BREAK))).astype(np.float32)
@@ -154,11 +159,13 @@ class EventEmulator:
         if p.cutoff_hz > 0:
             tau = 1.0 / (2 * math.pi * p.cutoff_hz)
             if luma.dtype == np.uint8:   # one exponential per DN value, not per pixel
-                eps = (-np.expm1(-BANDWIDTH * (dt / tau))).astype(np.float32)[luma]
+                eps = _lookup(luma, (-np.expm1(-BANDWIDTH * (dt / tau))).astype(np.float32))
             else:
                 eps = (-np.expm1(-((luma + 20.0) / 275.0) * np.float32(dt / tau))
                        ).astype(np.float32)
-            lp = self.lp + eps * (target - self.lp)
+            lp = np.subtract(target, self.lp, out=target)   # reuse: target is not needed after
+            lp *= eps
+            lp += self.lp
         else:
             lp = target
         base = self.base
