@@ -61,10 +61,14 @@ class Expert(Actor):
         # arm (sebvs.experts.arm.ArmExpertConfig)
         clearance: float = 0.10        # m above the object's top face
         camera: str = ""               # wrist camera name ("" = the scene's first)
+        threads: int = 1               # OpenCV threads: actors share the cores, and a second
+                                       # thread waiting on a busy core costs more than it saves
 
     async def setup(self) -> None:
+        import cv2
         from sebvs.experts.detector import ColorDetector
         p = self.params
+        cv2.setNumThreads(max(1, p.threads))
         if len(p.color) != 3:
             raise ValueError(f"expert: color must be [r, g, b], got {p.color!r}")
         self.detector = ColorDetector(rgb=tuple(float(c) for c in p.color), hue_tol=p.hue_tol,

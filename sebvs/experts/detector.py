@@ -105,12 +105,15 @@ class ColorDetector:
         m = cv2.inRange(hsv, *self._ranges[0])
         for lo, hi in self._ranges[1:]:
             m |= cv2.inRange(hsv, lo, hi)
-        # chroma test only where the hue test passed (few pixels): cheap at any size
-        ys, xs = np.nonzero(m)
-        if len(ys):
-            px = rgb[ys, xs].astype(np.int16)
-            low = (px.max(axis=1) - px.min(axis=1)) < self.c_min
-            m[ys[low], xs[low]] = 0
+        # chroma test only inside the box around what the hue test passed (usually the
+        # cube alone): cv2 ops on a small ROI instead of numpy over the whole frame
+        x, y, w, h = cv2.boundingRect(m)
+        if w:
+            roi = rgb[y:y + h, x:x + w]
+            r, g, b = cv2.split(roi)
+            chroma = cv2.subtract(cv2.max(cv2.max(r, g), b), cv2.min(cv2.min(r, g), b))
+            ok = cv2.compare(chroma, self.c_min, cv2.CMP_GE)
+            m[y:y + h, x:x + w] &= ok
         if self.open_px > 1:
             k = np.ones((self.open_px, self.open_px), np.uint8)
             m = cv2.morphologyEx(m, cv2.MORPH_OPEN, k)
@@ -119,7 +122,12 @@ class ColorDetector:
     def detect_all(self, rgb: np.ndarray) -> list[Detection]:
         """Every blob of at least min_area px, largest first."""
         m = self.mask(rgb)
-        n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8)
+        # components inside the mask's bounding box only: cheaper than the whole frame
+        bx, by, bw, bh = cv2.boundingRect(m)
+        if bw == 0:
+            return []
+        n, labels, stats, cents = cv2.connectedComponentsWithStats(
+            m[by:by + bh, bx:bx + bw], connectivity=8)
         out = []
         for i in range(1, n):
             x, y, w, h, area = (int(v) for v in stats[i])
@@ -130,8 +138,9 @@ class ColorDetector:
             # a square seen at an angle fills >= 1/2 of its box; a thin streak much less
             conf = size * min(1.0, fill / 0.5)
             angle = _blob_angle(labels[y:y + h, x:x + w] == i) if area >= 5 else 0.0
-            out.append(Detection(centroid=(float(cents[i][0]) + 0.5, float(cents[i][1]) + 0.5),
-                                 bbox=(x, y, w, h), area=area, confidence=float(conf),
+            out.append(Detection(centroid=(float(cents[i][0]) + bx + 0.5,
+                                           float(cents[i][1]) + by + 0.5),
+                                 bbox=(x + bx, y + by, w, h), area=area, confidence=float(conf),
                                  angle=angle))
         out.sort(key=lambda d: d.area, reverse=True)
         return out
