@@ -12,6 +12,11 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
   action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
+`LockstepRecorder` also has an output `action`: the expert's action of a tick, passed on
+once that tick's row is complete. Wire the sim's action to it in lockstep and the sim waits
+for the whole recorded chain (emulator and accumulator included), not only for the expert:
+otherwise nothing paces the sim to the event chain, which falls behind and drops luma
+frames. (A plain Recorder has no output, so the topology loader never prunes the tap.)
 One row per control tick once every connected stream delivered that tick (see
 sebvs.data.recording.TickJoiner); an episode file per sim episode, finished on its end
 marker, then indexed (sebvs.data.index). After `episodes` finished episodes the recorder
@@ -105,7 +110,7 @@ class Recorder(Actor):
                 return
 
     # --- streams -------------------------------------------------------------------
-    def _take(self, stream: str, msg: Message, item: dict) -> None:
+    async def _take(self, stream: str, msg: Message, item: dict) -> None:
         if msg.tick is None:
             self.skipped["no_tick"] += 1
             return
@@ -121,6 +126,11 @@ class Recorder(Actor):
         if done is None:
             return
         tick, row = done
+        act = row["action"]
+        if "action" in self.consumed:
+            # first, so the sim steps on while this row is written
+            await self.emit("action", {act["key"]: act["value"]}, parent=msg, tick=tick,
+                            t_sim=act["t_sim"], meta=act["meta"])
         latency = {}
         for s in STREAMS:
             if s in row:
@@ -147,7 +157,7 @@ class Recorder(Actor):
             self.skipped["not_control"] += 1
             return
         truth = msg.meta.get("truth")
-        self._take("rgb", msg, {"rgb": np.array(msg.arrays["rgb"]),   # copy out of shm
+        await self._take("rgb", msg, {"rgb": np.array(msg.arrays["rgb"]),   # copy out of shm
                                 "truth": truth if isinstance(truth, dict) else None,
                                 "episode": msg.meta.get("episode")})
 
@@ -161,7 +171,7 @@ class Recorder(Actor):
         m = msg.meta
         attrs = {k: m[k] if k in m else m[alt] for k, alt in EVENT_ATTRS.items()
                  if k in m or alt in m}
-        self._take("events", msg, {"frame": np.array(msg.arrays["frame"]), "raw": raw,
+        await self._take("events", msg, {"frame": np.array(msg.arrays["frame"]), "raw": raw,
                                    "attrs": attrs})
 
     async def on_raw(self, msg: Message) -> None:
@@ -174,15 +184,17 @@ class Recorder(Actor):
             return
         packets, self.raw_packets = self.raw_packets, []
         ev = np.concatenate(packets) if packets else np.zeros(0, RAW_DTYPE)
-        self._take("raw", msg, {"raw": {k: ev[k] for k in "xytp"}})
+        await self._take("raw", msg, {"raw": {k: ev[k] for k in "xytp"}})
 
     async def on_action(self, msg: Message) -> None:
         key = "action" if "action" in msg.arrays else "pose"
         if key not in msg.arrays:
             self.log.warning("action message without 'action' or 'pose' array; skipped")
             return
-        self._take("action", msg, {"key": key, "value": np.array(msg.arrays[key], np.float32),
-                                   "modality": msg.meta.get("modality")})
+        await self._take("action", msg, {"key": key,
+                                         "value": np.array(msg.arrays[key], np.float32),
+                                         "modality": msg.meta.get("modality"),
+                                         "meta": msg.meta})
 
     async def on_episode(self, msg: Message) -> None:
         m = msg.meta
@@ -220,3 +232,8 @@ class Recorder(Actor):
                 "outside_episodes": r.outside, "discarded": r.discarded,
                 "skipped": dict(self.skipped), "out": self.params.out,
                 "done": bool(self.params.episodes and len(r.finished) >= self.params.episodes)}
+
+
+class LockstepRecorder(Recorder):
+    """A Recorder that passes each recorded tick's action on (wire the sim's action here)."""
+    outputs = ("action",)

@@ -185,3 +185,25 @@ def test_kill_9_of_the_whole_run_keeps_finished_episodes(tmp_path):
     for path in DatasetIndex(out).episode_paths():
         with open_episode(path) as ep:
             assert len(ep) == 100
+
+
+def test_recorder_passes_on_each_recorded_tick_s_action(tmp_path):
+    """Wired to the sim in lockstep, the recorder's `action` paces the sim to the whole chain."""
+    out = tmp_path / "ds"
+    topo = topology(tmp_path, out, frames=5, episodes=2)
+    text = topo.read_text().replace("actors.recorder:Recorder",
+                                    "actors.recorder:LockstepRecorder") + f"""
+[actors.probe]
+run = "actors.synthetic:Probe"
+inputs = {{ action = "recorder/action" }}
+path = "{tmp_path / 'probe'}"
+"""
+    topo.write_text(text)
+    run_topology(topo, duration_s=20, runs_dir=tmp_path)
+    entries = json.loads((tmp_path / "probe.json").read_text())
+    ticks = [e["tick"] for e in entries]
+    assert ticks[:10] == list(range(10))
+    assert entries[3]["arrays"] == {"action": [[2], "<f4"]}
+    assert entries[3]["meta"] == {"modality": "rgb"}
+    arrays = np.load(tmp_path / "probe.npz")
+    np.testing.assert_array_equal(arrays["3.action.action"], expected_action(3))

@@ -18,8 +18,8 @@ RECORDER_CLASS = "actors.recorder:Recorder"
 
 
 def find_recorder(topo) -> str:
-    names = [n for n, a in topo.actors.items() if a.run == RECORDER_CLASS
-             or a.run.endswith(":Recorder")]
+    # actors.recorder:Recorder or :LockstepRecorder (or a user's subclass named *Recorder)
+    names = [n for n, a in topo.actors.items() if a.run.split(":")[-1].endswith("Recorder")]
     if len(names) != 1:
         raise LookupError(f"{topo.path if hasattr(topo, 'path') else 'topology'}: expected "
                           f"one recorder actor ({RECORDER_CLASS}), found {names or 'none'}")
