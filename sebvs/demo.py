@@ -37,7 +37,7 @@ def _format_metrics(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_at_s: float,
+def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_after: int,
              profile_json: str | None = None) -> int:
     topo = load_topology(topology, overrides)
     out = Path("runs") / "demo-tracking.jsonl"
@@ -56,18 +56,25 @@ def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_at_s
         return 1
     print(f"sebvs demo: {topo.name} running ({sup.rundir})", file=sys.stderr)
     collector = ProfileCollector(sup.info)
-    t0 = time.monotonic()
     swapped = [swap_to is None]
+    last_check = [0.0]
 
     def poll(dt: float) -> None:
         collector.poll(dt)
-        if not swapped[0] and time.monotonic() - t0 >= swap_at_s:
-            swapped[0] = True
-            reply = control_request(sup.ctx, sup.specs["policy"]["control"],
-                                    {"cmd": "set", "key": "modality", "value": swap_to}, 3.0)
-            print(f"sebvs demo: policy set modality={swap_to}: "
-                  f"{json.dumps(reply.get('result') if reply and reply.get('ok') else reply)}",
-                  file=sys.stderr)
+        if swapped[0] or time.monotonic() - last_check[0] < 0.1:
+            return
+        last_check[0] = time.monotonic()
+        policy = sup.specs["policy"]["control"]
+        stats = control_request(sup.ctx, policy, {"cmd": "stats"}, 1.0)
+        if not (stats and stats.get("ok")
+                and stats["result"]["actor_stats"]["emitted"] >= swap_after):
+            return
+        swapped[0] = True
+        reply = control_request(sup.ctx, policy,
+                                {"cmd": "set", "key": "modality", "value": swap_to}, 3.0)
+        print(f"sebvs demo: after {swap_after} actions, policy set modality={swap_to}: "
+              f"{json.dumps(reply.get('result') if reply and reply.get('ok') else reply)}",
+              file=sys.stderr)
 
     try:
         code = sup.wait(None, poll)
@@ -88,10 +95,10 @@ def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_at_s
 
 
 def _cmd_demo(args) -> int:
-    if args.swap_to and args.swap_at is None:
-        print("sebvs demo: --swap-to needs --swap-at SECONDS", file=sys.stderr)
+    if args.swap_to and args.swap_after is None:
+        print("sebvs demo: --swap-to needs --swap-after TICKS", file=sys.stderr)
         return 2
-    return run_demo(args.topology, args.set, args.swap_to, args.swap_at or 0.0,
+    return run_demo(args.topology, args.set, args.swap_to, args.swap_after or 0,
                     args.profile_json)
 
 
@@ -100,12 +107,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "and tracking metrics",
                        description="Run a closed-loop topology to its end with the latency "
                                    "profiler attached; optionally swap the policy's modality "
-                                   "at --swap-at seconds; print per-hop latency and the "
+                                   "after --swap-after control ticks; print per-hop latency and the "
                                    "tracker's metrics per episode and modality.")
     d.add_argument("topology")
     d.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE")
     d.add_argument("--swap-to", choices=["rgb", "event", "rgb+event"], default=None)
-    d.add_argument("--swap-at", type=float, default=None, metavar="SECONDS",
-                   help="wall seconds after the start")
+    d.add_argument("--swap-after", type=int, default=None, metavar="TICKS",
+                   help="swap once the policy has acted this many control ticks")
     d.add_argument("--profile-json", metavar="FILE")
     d.set_defaults(func=_cmd_demo)
