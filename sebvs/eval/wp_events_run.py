@@ -28,7 +28,7 @@ from sebvs.sim.render import FrameRenderer
 
 import mujoco  # noqa: E402
 
-from . import dvs_adapter  # noqa: F401  (ImportError while sebvs.dvs has no emulator)
+from . import dvs_adapter  # ImportError while sebvs.dvs has no emulator
 from . import wp_events
 from .wp_physics import nav_commands
 

@@ -22,7 +22,6 @@ set's mean action, so a model that learned nothing is recognisable.
 """
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from pathlib import Path
