@@ -102,3 +102,25 @@ def test_event_study_converges_with_the_sampling_rate():
         assert 0.5 < hi["count_ratio"] < 1.5
     assert all(p["error"] == p["ts_p90_us"] for p in timing)
     assert "2000 Hz" in note
+
+
+# ------------------------------------------------------------------ the tool's outputs
+def test_work_precision_tool_writes_the_summary_format(tmp_path, monkeypatch):
+    import importlib.util
+    import json
+    from pathlib import Path
+    monkeypatch.chdir(tmp_path)          # main() moves into --out; monkeypatch restores
+    path = Path(__file__).resolve().parents[1] / "tools" / "work_precision.py"
+    spec = importlib.util.spec_from_file_location("work_precision_tool", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    out = tmp_path / "wp"
+    assert tool.main(["--quick", "--out", str(out), "--only", "physics_nav,physics_conveyor"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    names = [s["name"] for s in summary["studies"]]
+    assert names == ["physics_nav", "physics_conveyor"] and summary["quick"] is True
+    nav = summary["studies"][0]
+    assert len(nav["points"]) == 20 and nav["pareto"]
+    assert set(nav["points"][0]) >= {"method", "setting", "error", "seconds"}
+    assert (out / "physics_nav.png").exists() and (out / "physics_nav.csv").exists()
+    assert summary["studies"][1]["points"] or "not run" in summary["studies"][1]["note"]
