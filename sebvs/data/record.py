@@ -115,6 +115,7 @@ def cmd_record(args) -> int:
     frames = sum(e["frames"] for e in new)
     if progress is not None:
         progress.bar.n = min(len(new), args.episodes)   # the last episode ends the run
+        progress.bar.set_postfix(frames=frames, refresh=False)
         progress.close()
     print(f"sebvs record: {len(new)} of {args.episodes} episode(s) recorded, {frames} frames, "
           f"{wall:.1f} s wall; dataset {out} now holds "
