@@ -44,7 +44,7 @@ class PatternSource(Actor):
         luma_hz: float = 0.0           # 0: luma at rate_hz
         speed_px_s: float = 120.0      # horizontal drift of the pattern
         square: bool = True            # a bright square moving across the texture
-        max_frames: int = 0            # 0: until stopped; otherwise the run ends after them
+        max_frames: int = 0            # control ticks; 0: until stopped, else the run ends
 
     async def setup(self) -> None:
         p = self.params
@@ -84,12 +84,13 @@ class PatternSource(Actor):
                 out = self.reserve("luma", {"luma": ((p.height, p.width), np.uint8)})
                 self._draw(t_sim, None, out["luma"])
                 await self.emit("luma", out, t_sim=t_sim, tick=tick, meta={"control": control})
-            if control and "frames" in self.consumed:
-                out = self.reserve("frames", {"rgb": ((p.height, p.width, 3), np.uint8)})
-                self._draw(t_sim, out["rgb"], None)
-                await self.emit("frames", out, t_sim=t_sim, tick=tick,
-                                meta={"control": True})
-                self.sent += 1
+            if control:
+                if "frames" in self.consumed:
+                    out = self.reserve("frames", {"rgb": ((p.height, p.width, 3), np.uint8)})
+                    self._draw(t_sim, out["rgb"], None)
+                    await self.emit("frames", out, t_sim=t_sim, tick=tick,
+                                    meta={"control": True})
+                self.sent += 1          # control ticks, whichever outputs are consumed
                 if p.max_frames and self.sent >= p.max_frames:
                     self.request_stop("max_frames reached")
                     return
