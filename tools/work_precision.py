@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Work-precision studies (issue 8): error against run time for every numerical knob.
 
-    tools/work_precision.py [--quick] --out DIR [--data DATASET --checkpoints CKPTS]
+    tools/work_precision.py [--quick] --out DIR [--data DATASET --checkpoints DIR [DIR ...]]
                             [--only physics_nav,policy,...]
 
 Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
@@ -75,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="the < 60 s version")
     ap.add_argument("--out", required=True, type=Path, help="output directory")
     ap.add_argument("--data", type=Path, help="recorded dataset (policy study, real path)")
-    ap.add_argument("--checkpoints", type=Path, help="directory of <task>-<modality>.pt")
+    ap.add_argument("--checkpoints", type=Path, nargs="+",
+                    help="directories of <task>-<modality>.pt (one per input size)")
     ap.add_argument("--only", default="", help=f"comma list out of {','.join(STUDIES)}")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
@@ -88,9 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg = settings(a.quick)
     a.out = a.out.resolve()
     a.out.mkdir(parents=True, exist_ok=True)
-    for key in ("data", "checkpoints"):
-        if getattr(a, key):
-            setattr(a, key, getattr(a, key).resolve())
+    if a.data:
+        a.data = a.data.resolve()
+        a.checkpoints = [c.resolve() for c in a.checkpoints]
     os.chdir(a.out)           # MuJoCo's warnings of diverged runs go to DIR/MUJOCO_LOG.TXT
     t_start = time.perf_counter()
 
@@ -158,8 +159,9 @@ def main(argv: list[str] | None = None) -> int:
         bar.set_postfix_str("policy")
         from sebvs.eval import wp_policy
         if a.checkpoints:
-            pts = wp_policy.real_points(a.data, a.checkpoints)
-            note = f"real: checkpoints {a.checkpoints} on held-out episodes of {a.data}"
+            pts = [p for c in a.checkpoints for p in wp_policy.real_points(a.data, c)]
+            note = (f"real: checkpoints {', '.join(map(str, a.checkpoints))} on the "
+                    f"validation episodes of {a.data} they were not trained on")
         else:
             with tempfile.TemporaryDirectory(prefix="wp_policy_") as work:
                 pts = wp_policy.synthetic_points(
