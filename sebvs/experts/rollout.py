@@ -58,15 +58,18 @@ def detection_errors(truth: list, detections: list) -> dict[str, np.ndarray]:
 
 
 def run_nav_episode(seed: int, *, episode_s: float = 12.0, control_hz: float = 10.0,
-                    physics_hz: float = 500.0, config: dict | None = None,
+                    physics_hz: float = 1000.0, integrator: str = "discrete",
+                    config: dict | None = None,
                     expert: NavExpert | None = None, detector: ColorDetector | None = None,
                     keep_frames: bool = False, drive: bool = True) -> NavEpisode:
     """One seeded episode of the nav scene driven by the expert.
 
-    config: nav scene config (default 160x160 indoor nominal); drive=False sends zero
+    config: nav scene config (default 160x160 indoor nominal); physics as in
+    topologies/nav_expert.toml (discrete integrator, 1 kHz); drive=False sends zero
     commands (an open-loop view for detector checks). Returns a NavEpisode.
     """
-    cfg = {"width": 160, "height": 160, **(config or {}), "timestep": 1.0 / physics_hz}
+    cfg = {"width": 160, "height": 160, **(config or {}), "timestep": 1.0 / physics_hz,
+           "integrator": integrator}
     scene = make_scene("nav", **cfg)
     model = scene.compile()
     data = mujoco.MjData(model)
