@@ -40,7 +40,7 @@ class Expert(Actor):
     class Params:
         task: Literal["nav", "arm"] = "nav"
         # detector (sebvs.experts.detector.ColorDetector)
-        color: list = field(default_factory=lambda: [0.9, 0.15, 0.1])   # rgb in [0, 1]
+        color: list[float] = field(default_factory=lambda: [0.9, 0.15, 0.1])   # rgb, [0, 1]
         hue_tol: float = 15.0          # deg
         s_min: int = 90                # saturation, 0..255
         c_min: int = 5                 # chroma, DN
@@ -66,13 +66,9 @@ class Expert(Actor):
 
     async def setup(self) -> None:
         import cv2
-        from sebvs.experts.detector import ColorDetector
         p = self.params
         cv2.setNumThreads(max(1, p.threads))
-        if len(p.color) != 3:
-            raise ValueError(f"expert: color must be [r, g, b], got {p.color!r}")
-        self.detector = ColorDetector(rgb=tuple(float(c) for c in p.color), hue_tol=p.hue_tol,
-                                      s_min=p.s_min, c_min=p.c_min, min_area=p.min_area)
+        self.detector = self._detector()
         self.episode = None
         self.last_t: float | None = None
         self.counts = {"actions": 0, "detected": 0, "missed": 0, "skipped_ticks": 0}
@@ -89,18 +85,47 @@ class Expert(Actor):
             self.arm_key = None
         self.log.info("expert: task %s, colour %s", p.task, p.color)
 
+    def _detector(self):
+        from sebvs.experts.detector import ColorDetector
+        p = self.params
+        if len(p.color) != 3:
+            raise ValueError(f"expert: color must be [r, g, b], got {p.color!r}")
+        return ColorDetector(rgb=tuple(float(c) for c in p.color), hue_tol=p.hue_tol,
+                             s_min=p.s_min, c_min=p.c_min, min_area=p.min_area)
+
     def _setup_nav(self) -> None:
-        from sebvs.experts.nav import NavExpert, NavExpertConfig
+        from sebvs.experts.nav import NavExpert
+        self.nav = NavExpert(self._nav_config())
+
+    def _nav_config(self):
+        from sebvs.experts.nav import NavExpertConfig
         from sebvs.experts.pid import PIDGains
         p = self.params
-        cfg = NavExpertConfig(
+        return NavExpertConfig(
             yaw=PIDGains(kp=p.yaw_kp, ki=p.yaw_ki, kd=p.yaw_kd, i_min=-0.4, i_max=0.4,
                          tau_d=0.05, anti_windup=p.anti_windup),
             speed=PIDGains(kp=p.speed_kp, ki=p.speed_ki, kd=p.speed_kd, i_min=-0.3, i_max=0.3,
                            anti_windup=p.anti_windup),
             desired_width=p.desired_width, turn_slowdown=p.turn_slowdown, hold_s=p.hold_s,
             search_w=p.search_w)
-        self.nav = NavExpert(cfg)
+
+    async def control(self, key: str, value) -> dict:
+        """`sebvs ctl RUN expert set yaw_kp=2.0` etc.: gains, detector and search settings
+        apply from the next tick (PID state kept); task and camera are fixed at setup."""
+        if key in ("task", "camera", "threads"):
+            raise ValueError(f"{key!r} cannot change while running")
+        old = getattr(self.params, key, None)
+        result = await super().control(key, value)
+        try:
+            self.detector = self._detector()
+            if self.params.task == "nav":
+                cfg = self._nav_config()
+                self.nav.cfg = cfg
+                self.nav.yaw_pid.g, self.nav.speed_pid.g = cfg.yaw, cfg.speed
+        except ValueError:
+            setattr(self.params, key, old)      # refused: the running settings stay
+            raise
+        return result
 
     # ------------------------------------------------------------------ common
     def _new_tick(self, msg: Message) -> float:

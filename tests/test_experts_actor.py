@@ -140,3 +140,18 @@ def test_arm_task_joins_rgb_depth_and_state_by_tick_in_process():
         else:
             assert meta["mode"] == "home_workspace" and ty > 0.449
     assert acts[3][2]["mode"] == "home_none" and acts[3][2]["detection"] is None
+
+
+def test_gains_change_while_running_and_bad_values_are_refused():
+    import pytest
+    node = FakeNode()
+    ex = Expert("expert", Expert.Params(), seed=0, clock="lockstep",
+                consumed=frozenset({"action"}), connected=frozenset({"rgb"}), node=node)
+    asyncio.run(ex.setup())
+    assert asyncio.run(ex.control("yaw_kp", 3.0)) == {"yaw_kp": 3.0}
+    assert ex.nav.yaw_pid.g.kp == 3.0
+    with pytest.raises(ValueError, match="grey"):
+        asyncio.run(ex.control("color", [0.5, 0.5, 0.5]))
+    assert ex.params.color == [0.9, 0.15, 0.1]
+    with pytest.raises(ValueError, match="cannot change"):
+        asyncio.run(ex.control("task", "arm"))
