@@ -3,14 +3,17 @@
 Every case runs with the detector the project ships (sebvs.sim.stability.StabilityMonitor
 with the scene's Limits, checked after every step, as the sim actor does) and, beside it,
 an independent *plausibility* test that knows what the scenario can physically do (the
-robot cannot leave its walled room or outrun its servo; a resting box cannot sink through
-the belt or rise above where it was dropped). The class:
+robot cannot leave its walled room or hold more kinetic energy than its drive can give; a
+box cannot tunnel into the belt, end sunk in it, or rise above where it was dropped). The
+class:
 
   stable      the monitor stayed silent and every state was plausible
   detected    the monitor ended the run with a reason (or, for emulator cases, the
               emulator raised a ValueError with a message)
   undetected  the monitor stayed silent but a state was not plausible (NaN/inf, a body
-              where it cannot be, an absurd speed): a silent blow-up, a detector gap
+              where it cannot be, an absurd speed or energy): a silent blow-up, a detector
+              gap; for emulator cases, any other exception, a numpy RuntimeWarning or
+              insane events (sebvs/eval/dvs_cases.py)
 
 The grids (QUICK for the test suite, FULL for tools/stability_sweep.py):
   nav_servo    servo_gain x integrator x timestep, commands alternating every 0.5 s
