@@ -96,6 +96,9 @@ def test_writer_checks_inputs_and_abort_removes_the_partial(tmp_path):
                  event_frame=np.zeros((2, 2, 2), np.uint8))
     w.abort()
     assert not list(tmp_path.iterdir())
+    with EpisodeWriter(path, "nav", {}) as w:       # a block left without finish: dropped
+        w.append(rgb=np.zeros((4, 4, 3), np.uint8), t_sim=0, tick=0, action=[0, 0])
+    assert not list(tmp_path.iterdir())
     with pytest.raises(ValueError, match="task"):
         EpisodeWriter(path, "fly", {})
 

@@ -282,7 +282,9 @@ class EpisodeWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None and self.f.id.valid:
+        # leaving the block without finish() (or on an exception) drops the episode: only
+        # an explicit finish makes a file with the final name
+        if self.f.id.valid:
             self.abort()
 
 
