@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import time
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +35,8 @@ NAV_CONDITIONS: dict[str, list[str]] = {
     "blur": ["sim.config.rgb_blur=8"],
 }
 MODALITIES = ("rgb", "event", "rgb+event")
+SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
+                   "episode_s")
 
 
 @dataclass
@@ -74,6 +77,15 @@ class EvalPlan:
     def episode_file(self, condition: str, modality: str) -> Path:
         return self.out / "episodes" / f"{condition}__{modality.replace('+', '_')}.jsonl"
 
+    def shared_sim(self) -> list[str]:
+        """The policy topology's physics and rates, imposed on the expert's run.
+
+        The expert row is a reference only if the robot, the clock and the camera's
+        sampling (which sets the blur exposure) are the same as the policies'.
+        """
+        sim = tomllib.loads(self.policy_topology.read_text())["actors"]["sim"]
+        return [f"sim.{k}={json.dumps(sim[k])}" for k in SHARED_SIM_KEYS if k in sim]
+
     def overrides(self, condition: str, modality: str) -> tuple[Path, list[str]]:
         path = self.episode_file(condition, modality)
         common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
@@ -81,7 +93,7 @@ class EvalPlan:
                   f'tracker.label={{condition="{condition}", modality="{modality}"}}',
                   *NAV_CONDITIONS[condition]]
         if modality == "expert":
-            return self.expert_topology, common + self.extra
+            return self.expert_topology, common + self.shared_sim() + self.extra
         sets = [f'policy.modality="{modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{modality}"]']
         if modality == "rgb":   # no events wired: emulator and accumulator are pruned
