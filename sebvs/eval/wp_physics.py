@@ -120,6 +120,32 @@ def belt_case(speed: float = 0.5, drop: float = 0.02) -> Case:
                      "m/s (static geom, surfacevel), default contact solref")
 
 
+def conveyor_case(seed: int = 0) -> Case:
+    """The arm scene's cube on its moving belt, arm idle (a zero command each tick): the
+    tracked body is the first body whose name contains "cube". Written before the arm
+    scene landed: it assumes only the Scene interface, a free cube body and that reset()
+    puts the cube on the running belt; the tool reports any failure as a note."""
+    def build(integrator: str, dt: float):
+        scene = make_scene("arm", integrator=integrator, timestep=dt)
+        model = scene.compile()
+        data = mujoco.MjData(model)
+        scene.reset(model, data, np.random.default_rng(seed))
+        return scene, model, data
+
+    scene, model, _ = build("implicitfast", 0.002)
+    names = [model.body(i).name for i in range(model.nbody)]
+    cube = next((n for n in names if "cube" in n.lower()), None)
+    if cube is None:
+        raise ValueError(f"arm scene: no body named like 'cube' among {names}")
+    zero = np.zeros(scene.command_dim)
+
+    def drive(scene, model, data, t: float) -> None:
+        scene.apply_command(model, data, zero)
+
+    return Case("conveyor", build, cube, drive,
+                note=f"arm scene, body {cube!r} carried by the conveyor, arm idle, seed {seed}")
+
+
 def arm_available() -> bool:
     return importlib.util.find_spec("sebvs.sim.arm") is not None
 
