@@ -20,7 +20,7 @@ gl:
 	@bash scripts/ensure_gl.sh
 
 demo: $(STAMP) gl
-	$(VENV)/bin/sebvs demo topologies/nav_expert.toml --set sim.episodes=2
+	$(VENV)/bin/sebvs demo topologies/nav_policy.toml --swap-to event --swap-after 150
 
 test: $(STAMP) gl
 	$(VPY) -m pytest -q
