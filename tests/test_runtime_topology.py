@@ -122,6 +122,9 @@ def test_param_coercion():
     assert coerce_param(float, 3, where="w") == 3.0
     assert coerce_param(Optional[int], None, where="w") is None
     assert coerce_param(list[int], [1, 2], where="w") == [1, 2]
+    assert coerce_param(list, [1, "a"], where="w") == [1, "a"]
+    with pytest.raises(ValueError, match="expected a list"):
+        coerce_param(list, 3, where="w")
     with pytest.raises(ValueError, match="one of"):
         coerce_param(Literal["a", "b"], "c", where="w")
     with pytest.raises(ValueError, match="expected int"):

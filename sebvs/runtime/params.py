@@ -46,6 +46,8 @@ def coerce_param(tp: Any, value: Any, *, where: str) -> Any:
         if value in typing.get_args(tp) and type(value) in {type(a) for a in typing.get_args(tp)}:
             return value
         raise ValueError(f"{where}: {value!r} is not {_type_name(tp)}")
+    if tp in (list, tuple):
+        tp, origin = list[Any], list
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise ValueError(f"{where}: expected a list, got {type(value).__name__} {value!r}")
