@@ -142,3 +142,27 @@ def test_stiff_contact_diverges_except_under_discrete():
         assert (why is not None) == diverges, (integrator, why)
         if diverges:
             assert "speed" in why
+
+
+def test_kinetic_ceiling_matches_the_robot_and_catches_a_slow_pump():
+    import mujoco
+    import numpy as np
+    from sebvs.sim import make_scene
+    from sebvs.sim.nav import ROBOT_INERTIA_Z, ROBOT_MASS
+    from sebvs.sim.stability import StabilityMonitor
+    scene = make_scene("nav")
+    model = scene.compile()
+    robot = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "robot")
+    assert model.body_subtreemass[robot] == np.float64(ROBOT_MASS)
+    assert model.body_inertia[robot].max() <= ROBOT_INERTIA_Z
+    data = mujoco.MjData(model)
+    scene.reset(model, data, np.random.default_rng(0))
+    mon = StabilityMonitor(model, scene.limits())
+    mujoco.mj_forward(model, data)
+    assert mon.check(model, data) is None
+    # under the speed limit (5.5 m/s) but far above what the drive can give
+    data.qvel[:2] = [3.5, 3.5]
+    mujoco.mj_forward(model, data)
+    mujoco.mj_energyVel(model, data)
+    reason = StabilityMonitor(model, scene.limits()).check(model, data)
+    assert reason and "kinetic energy" in reason

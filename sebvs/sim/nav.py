@@ -36,6 +36,8 @@ VARIANTS = ("indoor", "outdoor")
 LIGHTING = ("nominal", "low", "flicker")
 
 MASS = 10.0            # chassis, kg
+ROBOT_MASS = MASS + 4 * 0.5 + 0.1   # chassis, four wheels, mast (as in the MJCF), kg
+ROBOT_INERTIA_Z = 0.52 # kg m^2, bounds the robot's largest principal moment (tested)
 HALF = (0.25, 0.20, 0.06)   # chassis half sizes, m
 CUBE = 0.1             # target half side, m
 MU = 0.8               # tyre-ground friction, for the traction limits
@@ -214,7 +216,11 @@ class NavScene(Scene):
                       max_speed=3 * float(self.config["v_max"]) + 1.0,
                       max_angular=3 * float(self.config["w_max"]) + 1.0,
                       # kinetic energy at top speed is ~ 0.5*10*1.5^2 = 11 J
-                      max_energy_jump=50.0)
+                      max_energy_jump=50.0,
+                      # what the drive can give (top speed and turn rate at once), x1.5
+                      max_kinetic=1.5 * 0.5 * (ROBOT_MASS * float(self.config["v_max"]) ** 2
+                                               + ROBOT_INERTIA_Z
+                                               * float(self.config["w_max"]) ** 2))
 
     # ------------------------------------------------------------------ episode
     def reset(self, model, data, rng: np.random.Generator) -> None:

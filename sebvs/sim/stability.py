@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -44,11 +46,15 @@ class Limits:
     max_angular   rad/s, any rotational dof (hinge, ball, free-joint rotation)
     max_energy_jump  J: largest allowed rise of potential + kinetic energy in one check
                   (actuators add energy, so set it well above what they can add per step)
+    max_kinetic   J: ceiling on the total kinetic energy; catches a slow pump (a stiff
+                  contact feeding energy in small steps) that stays under the speed and
+                  jump limits
     """
     bounds: tuple[float, float, float, float, float, float] = (-50, 50, -50, 50, -10, 50)
     max_speed: float = 20.0
     max_angular: float = 200.0
     max_energy_jump: float = 1e3
+    max_kinetic: float = math.inf
 
 
 class StabilityMonitor:
@@ -97,7 +103,8 @@ class StabilityMonitor:
             and (not self.n_lin or qv[self.linear].max() <= lim.max_speed) \
             and (not self.n_ang or qv[self.angular].max() <= lim.max_angular) \
             and (pos >= self.lo).all() and (pos <= self.hi).all() \
-            and np.isfinite(data.qpos).all() and jump <= lim.max_energy_jump
+            and np.isfinite(data.qpos).all() and jump <= lim.max_energy_jump \
+            and (not self.energy_on or data.energy[1] <= lim.max_kinetic)
         if ok:
             self.last_energy = e
             return None
@@ -125,5 +132,8 @@ class StabilityMonitor:
                     f"{np.round(data.xpos[b], 3).tolist()} ({t})")
         if not np.isfinite(e):
             return f"diverged: non-finite energy at {t}"
-        return (f"diverged: energy jumped {jump:.3g} J in one check "
-                f"(> {lim.max_energy_jump:g}) at {t}")
+        if not jump <= lim.max_energy_jump:
+            return (f"diverged: energy jumped {jump:.3g} J in one check "
+                    f"(> {lim.max_energy_jump:g}) at {t}")
+        return (f"diverged: kinetic energy {float(data.energy[1]):.3g} J > "
+                f"{lim.max_kinetic:g} at {t}")
