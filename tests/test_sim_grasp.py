@@ -14,7 +14,7 @@ import mujoco  # noqa: E402
 
 from sebvs.experts.arm import ArmExpertConfig, CameraPose, pregrasp_from_images  # noqa: E402
 from sebvs.experts.detector import ColorDetector  # noqa: E402
-from sebvs.experts.grasp import (ArmHandles, GraspConfig, execute_grasp,  # noqa: E402
+from sebvs.sim.grasp import (ArmHandles, GraspConfig, execute_grasp,  # noqa: E402
                                  rpy_to_mat)
 
 HALF = 0.025

@@ -29,18 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-import sebvs.sim  # noqa: F401  (sets MUJOCO_GL before mujoco is first imported)
+import mujoco
 
-import mujoco  # noqa: E402
-
-
-def rpy_to_mat(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """3x3 rotation R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch),
-                              math.sin(pitch), math.cos(yaw), math.sin(yaw))
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+from .ik import dls_ik, rpy_to_mat  # rpy_to_mat: re-exported for callers of the executor
 
 
 @dataclass
@@ -90,50 +81,6 @@ class ArmHandles:
     object_body: str
 
 
-def dls_ik(model: mujoco.MjModel, data: mujoco.MjData, site: int, joints: np.ndarray,
-           target_pos: np.ndarray, target_mat: np.ndarray, q0: np.ndarray, *,
-           damping: float = 0.05, iters: int = 300, rot_weight: float = 0.3,
-           tol: float = 1e-4) -> tuple[np.ndarray, float, float]:
-    """Damped least squares on MuJoCo's site Jacobian: positions of `joints` (ids of hinge
-    or slide joints) that put the site at (target_pos m, target_mat 3x3). Uses `data` as
-    scratch (its qpos changes). Joint ranges are respected where the model limits them.
-    Returns (q, position residual m, rotation residual rad). The executor's fallback while
-    sebvs.sim.ik is not there."""
-    qadr = model.jnt_qposadr[joints]
-    dofs = model.jnt_dofadr[joints]
-    limited = model.jnt_limited[joints].astype(bool)
-    lo, hi = model.jnt_range[joints, 0], model.jnt_range[joints, 1]
-    q = np.array(q0, dtype=np.float64)
-    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-
-    def residual():
-        data.qpos[qadr] = q
-        mujoco.mj_kinematics(model, data)
-        R = data.site_xmat[site].reshape(3, 3)
-        ep = target_pos - data.site_xpos[site]
-        er = 0.5 * sum(np.cross(R[:, i], target_mat[:, i]) for i in range(3))
-        return ep, er
-
-    for _ in range(iters):
-        ep, er = residual()
-        if np.linalg.norm(ep) < tol and np.linalg.norm(er) < 10 * tol:
-            break
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_jacSite(model, data, jacp, jacr, site)
-        J = np.vstack([jacp[:, dofs], rot_weight * jacr[:, dofs]])
-        e = np.concatenate([ep, rot_weight * er])
-        q = q + J.T @ np.linalg.solve(J @ J.T + damping ** 2 * np.eye(6), e)
-        q = np.where(limited, np.clip(q, lo, hi), q)
-    ep, er = residual()
-    return q, float(np.linalg.norm(ep)), float(np.linalg.norm(er))
-
-
-def _ik(model, data, site, joints, pos, mat, q0):
-    """The one place the executor calls IK: dls_ik above until sebvs/sim/ik.py (the arm
-    scene's damped least squares) lands, then that, so experts, executor and scene agree."""
-    return dls_ik(model, data, site, joints, pos, mat, q0)
-
-
 class _Rig:
     """Ids of the handles, and physics stepping with the arm's position targets."""
 
@@ -168,8 +115,8 @@ class _Rig:
 
     def solve(self, pos, mat) -> tuple[np.ndarray, float, float]:
         self.scratch.qpos[:] = self.d.qpos
-        return _ik(self.m, self.scratch, self.site, self.joints, pos, mat,
-                   self.d.qpos[self.qadr].copy())
+        return dls_ik(self.m, self.scratch, self.site, self.joints, pos, mat,
+                      self.d.qpos[self.qadr].copy())
 
     def run(self, q_target, grip, seconds: float, settle_tol: float | None,
             track_hold: bool = False) -> tuple[float, str | None]:
