@@ -202,7 +202,6 @@ class NavScene(Scene):
         # floor within 0.5 m of the camera. Ask for 3 cm in absolute terms.
         model.vis.map.znear = 0.03 / model.stat.extent
         self._ids(model)
-        self.base_diffuse = model.light_diffuse.copy()    # (nlight, 3), flicker scales it
         return model
 
     def _ids(self, model: mujoco.MjModel) -> None:
@@ -226,7 +225,6 @@ class NavScene(Scene):
     def reset(self, model, data, rng: np.random.Generator) -> None:
         if not hasattr(self, "target_mocap"):
             self._ids(model)
-            self.base_diffuse = model.light_diffuse.copy()
         mujoco.mj_resetData(model, data)
         a = float(self.config["arena"])
         inner = a - 1.0                          # keep the target off the walls
@@ -239,8 +237,7 @@ class NavScene(Scene):
                                              np.random.default_rng(rng.integers(2 ** 63)))
         data.mocap_pos[self.target_mocap] = [start[0], start[1], CUBE]
         data.mocap_quat[self.target_mocap] = [1, 0, 0, 0]
-        self.flicker_phase = float(rng.uniform(0, 2 * math.pi))
-        self.light_scale = 1.0
+        self.reset_lights(model, rng)
         data.ctrl[:] = 0.0
         mujoco.mj_forward(model, data)
 
@@ -258,26 +255,9 @@ class NavScene(Scene):
     def scripted(self, model, data) -> None:
         xy = self.trajectory.step(model.opt.timestep)
         data.mocap_pos[self.target_mocap, :2] = xy
-        if self.config["lighting"] == "flicker":
-            # A mains-like flicker: intensity between 30% and 100%.
-            s = 0.65 + 0.35 * math.sin(2 * math.pi * self.config["flicker_hz"] * data.time
-                                       + self.flicker_phase)
-            self.light_scale = s
-            model.light_diffuse[:] = self.base_diffuse * s
+        self.flicker(model, data)
 
-    # ------------------------------------------------------------------ state / truth
-    def state(self, data) -> dict[str, np.ndarray]:
-        s = super().state(data)
-        s["light"] = np.array([self.light_scale], dtype=np.float64)
-        return s
-
-    def set_state(self, model, data, state) -> None:
-        super().set_state(model, data, state)
-        if "light" in state:
-            if not hasattr(self, "base_diffuse"):
-                self.base_diffuse = model.light_diffuse.copy()
-            model.light_diffuse[:] = self.base_diffuse * float(state["light"][0])
-
+    # ------------------------------------------------------------------ truth
     def robot_pose(self, data) -> tuple[float, float, float]:
         """(x m, y m, yaw rad) of the robot base."""
         q = data.qpos

@@ -17,6 +17,7 @@ the camera's model is identical to the sim's.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -45,6 +46,8 @@ class Scene(ABC):
     Class attributes:
       task         "nav" | "arm"
       command_dim  length of the command vector apply_command() takes
+      command_name the array name a command travels under ("action" for nav [v, w],
+                   "pose" for the arm's pre-grasp pose)
       cameras      camera names present in the MJCF
       defaults     config key -> default value (subclasses extend; unknown keys are errors)
 
@@ -55,6 +58,7 @@ class Scene(ABC):
 
     task: ClassVar[str]
     command_dim: ClassVar[int]
+    command_name: ClassVar[str] = "action"
     cameras: ClassVar[tuple[str, ...]]
     defaults: ClassVar[dict[str, Any]] = {"integrator": None, "timestep": None,
                                           "shadows": False}
@@ -117,6 +121,10 @@ class Scene(ABC):
               rng: np.random.Generator) -> None:
         """Start a new episode: mj_resetData, randomise from `rng`, mj_forward."""
 
+    def idle_command(self) -> np.ndarray:
+        """The command in force before any arrives (float64 (command_dim,)): stand still."""
+        return np.zeros(self.command_dim)
+
     @abstractmethod
     def apply_command(self, model: mujoco.MjModel, data: mujoco.MjData,
                       command: np.ndarray) -> None:
@@ -142,13 +150,43 @@ class Scene(ABC):
         """A reason string when the episode ends by success/failure, else None."""
         return None
 
+    def finish(self, model: mujoco.MjModel, data: mujoco.MjData, monitor=None) -> dict:
+        """After an episode's last tick (not after a divergence or a stop): what the task
+        does with the last command, e.g. the arm grasps its last pose. msgpack-able outcome
+        for the episode's end message; steps `data` (checked by `monitor`, if given)."""
+        return {}
+
+    # -- lighting conditions ----------------------------------------------------------------
+    # Scenes with config keys `lighting` ("nominal" | "low" | "flicker") and `flicker_hz`
+    # share the flicker: every light's diffuse scaled by 30-100 % at flicker_hz (mains-like),
+    # sent to the camera as state `light` since it changes the model, not qpos.
+    def reset_lights(self, model: mujoco.MjModel, rng: np.random.Generator) -> None:
+        """Episode start: full intensity, the flicker's phase drawn from `rng`."""
+        if not hasattr(self, "base_diffuse"):
+            self.base_diffuse = model.light_diffuse.copy()     # (nlight, 3)
+        self.flicker_phase = float(rng.uniform(0, 2 * math.pi))
+        self.light_scale = 1.0
+        model.light_diffuse[:] = self.base_diffuse
+
+    def flicker(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """From scripted(): modulate the lights when the config's lighting is "flicker"."""
+        if self.config.get("lighting") != "flicker":
+            return
+        s = 0.65 + 0.35 * math.sin(2 * math.pi * self.config["flicker_hz"] * data.time
+                                   + self.flicker_phase)
+        self.light_scale = s
+        model.light_diffuse[:] = self.base_diffuse * s
+
     # -- state on the wire ----------------------------------------------------------------
     def state(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
         """What the camera needs to pose its own model: copies of qpos, mocap_pos,
-        mocap_quat (float64; shapes (nq,), (nmocap, 3), (nmocap, 4)) and, when the scene
-        animates lights, `light` (float32 (nlight,) diffuse scale)."""
-        return {"qpos": data.qpos.copy(), "mocap_pos": data.mocap_pos.copy(),
-                "mocap_quat": data.mocap_quat.copy()}
+        mocap_quat (float64; shapes (nq,), (nmocap, 3), (nmocap, 4)) and, in scenes with a
+        lighting condition, `light` (float64 (1,): the flicker's diffuse scale)."""
+        s = {"qpos": data.qpos.copy(), "mocap_pos": data.mocap_pos.copy(),
+             "mocap_quat": data.mocap_quat.copy()}
+        if "lighting" in self.defaults:
+            s["light"] = np.array([getattr(self, "light_scale", 1.0)], dtype=np.float64)
+        return s
 
     @staticmethod
     def kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -168,3 +206,7 @@ class Scene(ABC):
         if model.nmocap:
             data.mocap_pos[:] = state["mocap_pos"]
             data.mocap_quat[:] = state["mocap_quat"]
+        if "light" in state:
+            if not hasattr(self, "base_diffuse"):
+                self.base_diffuse = model.light_diffuse.copy()
+            model.light_diffuse[:] = self.base_diffuse * float(state["light"][0])
