@@ -49,12 +49,33 @@ class Limits:
     max_kinetic   J: ceiling on the total kinetic energy; catches a slow pump (a stiff
                   contact feeding energy in small steps) that stays under the speed and
                   jump limits
+    solid_boxes   names of static box geoms (a belt, a table) that nothing passes through
+    free_bodies   names of the bodies whose centre must not stay inside one of them for
+                  sink_s seconds: a body that tunnelled or sank is at rest, so no speed or
+                  energy limit sees it. (MuJoCo's soft contacts let a hard impact push a
+                  centre below a surface for a few milliseconds; the contact pushes it
+                  back out, hence the persistence.)
+    sink_s        s, see free_bodies
+    passive_rise  m: how far one of the free_bodies may rise while nothing but static
+                  geoms and other free bodies touches it. A passive body cannot climb; a
+                  stiff contact (time constant below two timesteps) makes resting bodies
+                  chatter and hop, slowly, under every speed and energy limit above. The
+                  reference height is the body's at the episode start, at its last touch by
+                  the robot (any other non-static geom), or after it rested for rest_s; it
+                  never moves up otherwise. (Height, not energy: an integrator's energy
+                  drift in free fall would be mistaken for a gain at large timesteps.)
+    rest_s        s of rest (speed < 1 mm/s, spin < 0.01 rad/s) that reset the reference
     """
     bounds: tuple[float, float, float, float, float, float] = (-50, 50, -50, 50, -10, 50)
     max_speed: float = 20.0
     max_angular: float = 200.0
     max_energy_jump: float = 1e3
     max_kinetic: float = math.inf
+    solid_boxes: tuple[str, ...] = ()
+    free_bodies: tuple[str, ...] = ()
+    sink_s: float = 0.05
+    passive_rise: float = math.inf
+    rest_s: float = 0.02
 
 
 class StabilityMonitor:
@@ -62,6 +83,7 @@ class StabilityMonitor:
 
     def __init__(self, model: mujoco.MjModel, limits: Limits) -> None:
         self.limits = limits
+        self.model_ref = model
         jtype = model.jnt_type[model.dof_jntid]               # (nv,) joint type per dof
         free = mujoco.mjtJoint.mjJNT_FREE
         slide = mujoco.mjtJoint.mjJNT_SLIDE
@@ -80,10 +102,33 @@ class StabilityMonitor:
         self.last_energy: float | None = None
         self.warn_idx = np.array([int(w) for w in _FATAL_WARNINGS.values()])
         self.warnings0 = np.zeros(len(self.warn_idx), np.int64)
+        self.inside_since: float | None = None
+        # static boxes: centre, rotation, half sizes are fixed; kept as arrays for one
+        # vectorised containment test of every free body in every box
+        self.boxes = np.array([model.geom(n).id for n in limits.solid_boxes], dtype=int)
+        self.free = np.array([model.body(n).id for n in limits.free_bodies], dtype=int)
+        # passive free bodies: free-joint dof address, which geoms count as the robot
+        self.passive = self.free.size > 0 and math.isfinite(limits.passive_rise)
+        if self.passive:
+            self.dof = model.jnt_dofadr[model.body_jntadr[self.free]]       # (F,)
+            static = model.body_weldid[model.geom_bodyid] == 0               # (ngeom,)
+            freeg = np.isin(model.geom_bodyid, self.free)
+            self.robot_geom = ~static & ~freeg          # what may lift a body
+        if self.boxes.size:
+            d = mujoco.MjData(model)
+            mujoco.mj_kinematics(model, d)
+            self.box_pos = d.geom_xpos[self.boxes].copy()            # (B, 3)
+            self.box_rot = d.geom_xmat[self.boxes].reshape(-1, 3, 3)  # (B, 3, 3)
+            self.box_half = model.geom_size[self.boxes].copy()        # (B, 3)
 
     def reset(self, data: mujoco.MjData) -> None:
         """Call after an episode reset (clears the energy reference and warning counts)."""
         self.last_energy = None
+        self.inside_since = None
+        if self.passive:
+            mujoco.mj_kinematics(self.model_ref, data)
+            self.z_ref = data.xpos[self.free, 2].copy()
+            self.rest_since = np.full(self.free.size, np.nan)
         self.warnings0 = np.array(data.warning.number, dtype=np.int64)[self.warn_idx]
 
     def check(self, model: mujoco.MjModel, data: mujoco.MjData) -> str | None:
@@ -104,11 +149,47 @@ class StabilityMonitor:
             and (not self.n_ang or qv[self.angular].max() <= lim.max_angular) \
             and (pos >= self.lo).all() and (pos <= self.hi).all() \
             and np.isfinite(data.qpos).all() and jump <= lim.max_energy_jump \
-            and (not self.energy_on or data.energy[1] <= lim.max_kinetic)
+            and (not self.energy_on or data.energy[1] <= lim.max_kinetic) \
+            and not self._sunk(data) and not self._climbed(data)
         if ok:
             self.last_energy = e
             return None
         return self._diagnose(model, data, qv, pos, e, jump)
+
+    def _inside(self, data: mujoco.MjData) -> np.ndarray:
+        """(F, B) bool: free body f's centre lies inside solid box b."""
+        p = data.xpos[self.free]                                      # (F, 3)
+        local = np.einsum("bji,fbj->fbi", self.box_rot, p[:, None, :] - self.box_pos[None])
+        return (np.abs(local) < self.box_half[None]).all(axis=2)
+
+    def _climbed(self, data: mujoco.MjData) -> bool:
+        """Some passive free body rose more than passive_rise above its reference."""
+        if not self.passive:
+            return False
+        z = data.xpos[self.free, 2]
+        touched = np.zeros(self.free.size, dtype=bool)
+        if data.ncon:
+            geoms = data.contact.geom[:data.ncon]                             # (ncon, 2)
+            robot = self.robot_geom[geoms]
+            bodies = self.model_ref.geom_bodyid[geoms]
+            hit = np.concatenate([bodies[robot[:, 0], 1], bodies[robot[:, 1], 0]])
+            touched = np.isin(self.free, hit)
+        v = data.qvel[self.dof[:, None] + np.arange(6)]                      # (F, 6)
+        still = (np.abs(v[:, :3]).max(1) < 1e-3) & (np.abs(v[:, 3:]).max(1) < 1e-2)
+        self.rest_since = np.where(still, np.where(np.isnan(self.rest_since), data.time,
+                                                   self.rest_since), np.nan)
+        rested = still & (data.time - self.rest_since >= self.limits.rest_s)
+        self.z_ref = np.where(touched | rested, z, self.z_ref)
+        return bool((z - self.z_ref > self.limits.passive_rise).any())
+
+    def _sunk(self, data: mujoco.MjData) -> bool:
+        """Some free body's centre has been inside a solid box for sink_s or longer."""
+        if not (self.boxes.size and self.free.size) or not self._inside(data).any():
+            self.inside_since = None
+            return False
+        if self.inside_since is None:
+            self.inside_since = float(data.time)
+        return data.time - self.inside_since >= self.limits.sink_s
 
     def _diagnose(self, model, data, qv, pos, e, jump) -> str:
         lim, t = self.limits, f"t={data.time:.4f}s"
@@ -130,6 +211,19 @@ class StabilityMonitor:
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}"
             return (f"diverged: body {name!r} left the world bounds at "
                     f"{np.round(data.xpos[b], 3).tolist()} ({t})")
+        if self.passive and (data.xpos[self.free, 2] - self.z_ref
+                             > self.limits.passive_rise).any():
+            rise = data.xpos[self.free, 2] - self.z_ref
+            f = int(np.argmax(rise))
+            return (f"diverged: body {self.limits.free_bodies[f]!r} rose {rise[f]:.3g} m "
+                    f"with nothing but static geoms or other free bodies touching it "
+                    f"(> {self.limits.passive_rise:g}) at {t}")
+        if self._sunk(data):
+            f, b = np.argwhere(self._inside(data))[0]
+            return (f"diverged: body {self.limits.free_bodies[f]!r} sank into "
+                    f"{self.limits.solid_boxes[b]!r} at "
+                    f"{np.round(data.xpos[self.free[f]], 3).tolist()} for "
+                    f"{data.time - self.inside_since:.3f} s ({t})")
         if not np.isfinite(e):
             return f"diverged: non-finite energy at {t}"
         if not jump <= lim.max_energy_jump:
