@@ -1,6 +1,7 @@
 """The sim actor: MuJoCo physics of one scene, and the topology's clock.
 
-Input  `action`   msg.arrays["action"]: (command_dim,) float command for tick msg.tick.
+Input  `action`   msg.arrays[scene.command_name]: (command_dim,) float command for tick
+                  msg.tick ("action" [v, w] for nav, "pose" [x, y, z, r, p, y] for the arm).
 Output `state`    scene.state() arrays (qpos, mocap_pos, mocap_quat, ...), published at
                   render_hz and at every control tick. meta: episode (int), control (bool:
                   True on the sample of a control tick), t_ep (s since the episode start),
@@ -9,7 +10,9 @@ Output `state`    scene.state() arrays (qpos, mocap_pos, mocap_quat, ...), publi
                   sim's params are the one source of the scene config). tick = the current
                   control tick (global, counts across episodes); t_sim = simulated seconds
                   since the run started (monotonic across episodes).
-Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps}.
+Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps;
+                  end also t_ep and outcome: scene.finish()'s result (the arm's grasp of
+                  its last command), {} after a divergence or a stop}.
 
 Clock (DESIGN.md section 3):
   lockstep  after publishing control tick k the sim waits for the action with tick >= k
@@ -99,7 +102,7 @@ class Sim(Actor):
         self.data = mujoco.MjData(self.model)
         self.monitor = StabilityMonitor(self.model, self.scene.limits())
         self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
-        self.command = np.zeros(self.scene.command_dim)     # last good command
+        self.command = self.scene.idle_command()            # last good command
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: newest valid action
         self.action_tick = -1
         self.action_event = asyncio.Event()
@@ -114,7 +117,7 @@ class Sim(Actor):
 
     # ------------------------------------------------------------------ actions
     async def on_action(self, msg: Message) -> None:
-        cmd = msg.arrays.get("action")
+        cmd = msg.arrays.get(self.scene.command_name)
         tick = msg.tick if msg.tick is not None else self.tick
         if self.lockstep_wait and tick < self.tick:
             self.counts["stale_actions"] += 1       # answer to a tick already stepped past
@@ -194,7 +197,7 @@ class Sim(Actor):
         seed = episode_seed(self.seed, k)
         scene.reset(model, data, np.random.default_rng(seed))
         self.monitor.reset(data)
-        self.command = np.zeros(scene.command_dim)
+        self.command = scene.idle_command()
         self.pending = None
         scene.apply_command(model, data, self.command)
         info = {"episode": k, "seed": seed, "scene": p.scene, "config": self.config}
@@ -246,11 +249,17 @@ class Sim(Actor):
         self.counts["steps"] += step
         self.counts["episodes"] += 1
         t_ep = float(data.time) if math.isfinite(data.time) else step * self.dt
+        outcome = {}
+        if reason != "stopped" and not reason.startswith("diverged"):
+            # after t_ep is taken: what finish() simulates (a grasp) is not episode time
+            outcome = scene.finish(model, data, self.monitor)
         await self.emit("episode", meta={"event": "end", "reason": reason, "steps": step,
-                                         "t_ep": t_ep, **info},
+                                         "t_ep": t_ep, "outcome": outcome, **info},
                         t_sim=self.t_offset + t_ep, tick=self.tick)
-        self.telemetry("episode_end", episode=k, seed=seed, reason=reason, steps=step)
-        self.log.info("episode %d (seed %d) ended: %s after %d steps", k, seed, reason, step)
+        self.telemetry("episode_end", episode=k, seed=seed, reason=reason, steps=step,
+                       outcome=outcome.get("outcome", ""))
+        self.log.info("episode %d (seed %d) ended: %s after %d steps%s", k, seed, reason, step,
+                      f"; {outcome['outcome']}" if "outcome" in outcome else "")
         self.t_offset += t_ep
 
     def stats(self) -> dict:

@@ -20,8 +20,8 @@ Cases:
             geom with surfacevel, the mechanism of the arm scene's conveyor), carried for
             N s: contacts and friction, which the nav robot never touches. Our own MJCF
             (sebvs.eval.stability.belt_mjcf), so it runs before the arm scene exists.
-  conveyor  a cube carried by the arm scene's moving belt (sebvs/sim/arm.py): built by
-            `conveyor_case()` when that module exists, else the study says it is missing.
+  conveyor  a cube carried by the arm scene's moving belt (sebvs/sim/arm.py), the UR5
+            holding HOME under its joint servos: `conveyor_case()`.
 
 Reference check: `reference_spread` runs the reference method at half its step; the
 distance between the two bounds the reference's own error (errors far below it are
@@ -121,12 +121,11 @@ def belt_case(speed: float = 0.5, drop: float = 0.02) -> Case:
 
 
 def conveyor_case(seed: int = 0) -> Case:
-    """The arm scene's cube on its moving belt, arm idle (a zero command each tick): the
-    tracked body is the first body whose name contains "cube". Written before the arm
-    scene landed: it assumes only the Scene interface, a free cube body and that reset()
-    puts the cube on the running belt; the tool reports any failure as a note."""
+    """The arm scene's cube on its moving belt (conveyor "moving"), the arm holding HOME
+    (its idle command each tick): the tracked body is the first body whose name contains
+    "cube". Uses only the Scene interface; the tool reports any failure as a note."""
     def build(integrator: str, dt: float):
-        scene = make_scene("arm", integrator=integrator, timestep=dt)
+        scene = make_scene("arm", conveyor="moving", integrator=integrator, timestep=dt)
         model = scene.compile()
         data = mujoco.MjData(model)
         scene.reset(model, data, np.random.default_rng(seed))
@@ -137,10 +136,10 @@ def conveyor_case(seed: int = 0) -> Case:
     cube = next((n for n in names if "cube" in n.lower()), None)
     if cube is None:
         raise ValueError(f"arm scene: no body named like 'cube' among {names}")
-    zero = np.zeros(scene.command_dim)
+    idle = scene.idle_command()
 
     def drive(scene, model, data, t: float) -> None:
-        scene.apply_command(model, data, zero)
+        scene.apply_command(model, data, idle)
 
     return Case("conveyor", build, cube, drive,
                 note=f"arm scene, body {cube!r} carried by the conveyor, arm idle, seed {seed}")
