@@ -389,6 +389,7 @@ class ArmScene(Scene):
             z = BELT_TOP + half + float(c["drop_height"])
             data.qpos[adr:adr + 7] = [x, y, z, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
         self.halves = np.array([p[2] for p in placed])
+        self.colours = model.geom_rgba[self.cube_geom, :3].copy()
         self.reset_lights(model, rng)
         self.command_pose = np.asarray(HOME_POSE, dtype=np.float64)
         mujoco.mj_forward(model, data)
@@ -413,6 +414,26 @@ class ArmScene(Scene):
         if self.belt_speed:
             model.geom_surfacevel[self.belt, 1] = min(self.belt_speed, BELT_ACCEL * data.time)
         self.flicker(model, data)
+
+    # ------------------------------------------------------------------ state
+    def state(self, data) -> dict[str, np.ndarray]:
+        """Scene.state() plus the episode's cube sizes and colours (`cube_half` (n,),
+        `cube_rgb` (n, 3)): drawn at reset, they change the model, and the camera renders
+        from its own copy of it."""
+        s = super().state(data)
+        s["cube_half"] = self.halves.copy()
+        s["cube_rgb"] = self.colours.copy()
+        return s
+
+    def set_state(self, model, data, state) -> None:
+        super().set_state(model, data, state)
+        if "cube_half" in state:
+            if not hasattr(self, "cube_geom"):
+                self._ids(model)
+            model.geom_size[self.cube_geom] = np.asarray(state["cube_half"])[:, None]
+            model.geom_rgba[self.cube_geom, :3] = state["cube_rgb"]
+            self.halves = np.array(state["cube_half"], dtype=np.float64)
+            self.colours = np.array(state["cube_rgb"], dtype=np.float64)
 
     # ------------------------------------------------------------------ truth
     def cube_yaw(self, data, i: int) -> float:
