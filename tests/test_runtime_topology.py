@@ -67,6 +67,10 @@ def test_overrides(tmp_path):
     assert topo.actors["sink"].params["work_ms"] == 2.5
     with pytest.raises(TopologyError, match="no actor 'camera'"):
         load(tmp_path, BASE, ["camera.width=3"])
+    # an actor added from the command line: `run` first, then its keys
+    topo = load(tmp_path, BASE, ['tap.run="actors.synthetic:Sink"',
+                                 'tap.inputs={frames="source/frames"}'])
+    assert topo.actors["tap"].inputs["frames"].source == "source/frames"
     with pytest.raises(TopologyError, match="expected int"):
         load(tmp_path, BASE, ["source.width=wide"])
 

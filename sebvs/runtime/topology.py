@@ -101,10 +101,14 @@ def _apply_override(doc: dict, text: str) -> None:
     if parts[0] == "topology":
         table = doc.setdefault("topology", {})
     else:
-        actors = doc.get("actors", {})
+        actors = doc.setdefault("actors", {})
         if parts[0] not in actors:
-            raise TopologyError(f"--set {text!r}: no actor {parts[0]!r} "
-                                f"(actors: {', '.join(actors) or 'none'})")
+            # `--set NAME.run="module:Class"` adds an actor (a video writer, a recorder...)
+            if parts[1:] != ["run"]:
+                raise TopologyError(f"--set {text!r}: no actor {parts[0]!r} "
+                                    f"(actors: {', '.join(actors) or 'none'}; add one with "
+                                    f"{parts[0]}.run=\"module:Class\" first)")
+            actors[parts[0]] = {}
         table = actors[parts[0]]
     for p in parts[1:-1]:
         table = table.setdefault(p, {})
