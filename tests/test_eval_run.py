@@ -1,7 +1,10 @@
-"""A short closed-loop evaluation end to end: expert and a tiny policy, 2 episodes, real runs."""
+"""A short closed-loop evaluation end to end: expert and a tiny policy, 2 episodes, real runs,
+with episode videos."""
 import json
+import re
 
 from sebvs.eval.run import EvalPlan, evaluate
+from sebvs.eval.video import count_frames
 from tests.policy_data import make_dataset
 
 
@@ -14,7 +17,7 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
           epochs=1, batch=8, norm=Normalisation(size=32))
     plan = EvalPlan(task="nav", modalities=["rgb+event"], conditions=["nominal"], episodes=2,
                     out=tmp_path / "eval", checkpoints=str(tmp_path / "ckpt"),
-                    extra=["sim.episode_s=1.5"])
+                    extra=["sim.episode_s=1.5"], video=True, video_episodes=2)
     results = evaluate(plan)
     eps = results["episodes"]
     assert {(e["modality"], e["condition"]) for e in eps} == {("expert", "nominal"),
@@ -33,6 +36,17 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
         assert (tmp_path / "eval" / png).stat().st_size > 5000
     saved = json.loads((tmp_path / "eval" / "results.json").read_text())
     assert len(saved["episodes"]) == 4
+    # one video per episode, one frame per control tick the tracker counted
+    videos = [f"videos/nominal__{m}__ep{k}.mp4" for m in ("expert", "rgb_event") for k in (0, 1)]
+    assert saved["videos"] == videos
+    ticks = [len(e["trace_error_px"]) for e in eps]
+    assert ticks[0] == 16                               # 1.5 s at 10 Hz, both ends
+    assert [count_frames(tmp_path / "eval" / v) for v in videos] == ticks
+    # the policy run's writer had the event frames: all but (under load) the run's very
+    # last tick, whose action the sim does not wait for, carry the overlay
+    log = next((tmp_path / "eval" / "runs").glob("nav_policy-*/logs/video.log")).read_text()
+    assert "events overlaid" in log
+    assert int(re.search(r"'without_overlay': (\d+)", log).group(1)) <= 1
     # resume: everything is finished, so nothing runs again and the results are the same
     runs_before = len(list((tmp_path / "eval" / "runs").iterdir()))
     again = evaluate(plan)

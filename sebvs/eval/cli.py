@@ -12,16 +12,17 @@ def _cmd_eval(args) -> int:
                     conditions=[c for c in args.conditions.split(",") if c],
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
                     seed=args.seed, checkpoints=args.checkpoints, expert=not args.no_expert,
-                    extra=args.set)
+                    extra=args.set, video=args.video, video_episodes=args.video_episodes)
     try:
         plan.validate()
     except ValueError as exc:
         print(f"sebvs eval: {exc}", file=sys.stderr)
         return 2
-    evaluate(plan)
+    results = evaluate(plan)
     print((plan.out / "report.md").read_text())
     print(f"wrote {plan.out}/report.md, results.json, success.png, centroid_error.png, "
-          f"latency.png")
+          f"latency.png" + (f", videos/ ({len(results.get('videos', []))} files)"
+                            if plan.video else ""))
     return 0
 
 
@@ -45,6 +46,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="directory with <task>-<modality>.pt checkpoints")
     e.add_argument("--seed", type=int, default=1000, help="topology seed (episode seeds follow)")
     e.add_argument("--no-expert", action="store_true", help="leave out the expert reference row")
+    e.add_argument("--video", action="store_true",
+                   help="also write episode videos to OUT/videos/<condition>__<modality>__ep<k>"
+                        ".mp4 (rgb+event as rgb_event): per control tick the RGB frame the "
+                        "policy saw, that tick's event frame overlaid (ON blue, OFF red; event "
+                        "modalities only), the target's true bbox and centroid, and modality, "
+                        "tick and centre error")
+    e.add_argument("--video-episodes", type=int, default=1, metavar="K",
+                   help="with --video: the first K episodes of each run (default 1)")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="extra topology overrides for every run")
     e.add_argument("--out", required=True, help="output directory")

@@ -8,7 +8,13 @@ supervises the runs with a progress bar, and aggregates.
 
 Resuming: a (condition, modality) whose episode file already holds N episodes is skipped;
 one that holds fewer is run again from its first episode (runs are short and episodes
-are seeded, so the numbers are the same).
+are seeded, so the numbers are the same). With `video`, a run whose videos are missing
+is run again too.
+
+Videos (`video`): the overrides add a video writer (actors/video.py) to the run, writing
+<out>/videos/<condition>__<modality>__ep<k>.mp4 for the first `video_episodes` episodes,
+with the event frames wired to it for the modalities that use them. Without `video` no
+such actor starts.
 """
 from __future__ import annotations
 
@@ -21,7 +27,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ..runtime.supervisor import RunFailed, Supervisor, control_request
-from ..runtime.topology import load_topology
+from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,6 +59,8 @@ class EvalPlan:
     policy_topology: Path = ROOT / "topologies" / "nav_policy.toml"
     expert_topology: Path = ROOT / "topologies" / "nav_expert.toml"
     extra: list[str] = field(default_factory=list)
+    video: bool = False          # one MP4 per episode of each run ...
+    video_episodes: int = 1      # ... for its first K episodes
 
     def validate(self) -> None:
         if self.task != "nav":
@@ -69,6 +77,8 @@ class EvalPlan:
             raise ValueError("--episodes must be at least 1")
         if self.clock not in ("lockstep", "realtime"):
             raise ValueError(f"--clock {self.clock!r} is not lockstep or realtime")
+        if self.video and self.video_episodes < 1:
+            raise ValueError("--video-episodes must be at least 1")
 
     def runs(self) -> list[tuple[str, str]]:
         mods = (["expert"] if self.expert else []) + list(self.modalities)
@@ -76,6 +86,40 @@ class EvalPlan:
 
     def episode_file(self, condition: str, modality: str) -> Path:
         return self.out / "episodes" / f"{condition}__{modality.replace('+', '_')}.jsonl"
+
+    def video_prefix(self, condition: str, modality: str) -> str:
+        return f"{condition}__{modality.replace('+', '_')}"
+
+    def video_files(self, condition: str, modality: str) -> list[Path]:
+        """The videos a finished run leaves (.mp4; see EpisodeVideo for the .avi fallback)."""
+        prefix = self.video_prefix(condition, modality)
+        return [self.out / "videos" / f"{prefix}__ep{k}.mp4"
+                for k in range(min(self.video_episodes, self.episodes))]
+
+    def videos_missing(self, condition: str, modality: str) -> bool:
+        return self.video and not all(p.exists() or p.with_suffix(".avi").exists()
+                                      for p in self.video_files(condition, modality))
+
+    def video_overrides(self, condition: str, modality: str) -> list[str]:
+        if not self.video:
+            return []
+        # one frame per control tick: at the control rate the video plays in sim time
+        hz = tomllib.loads(self.policy_topology.read_text())["actors"]["sim"].get("control_hz")
+        for text in self.extra:
+            parts, value = parse_override(text)
+            if parts == ["sim", "control_hz"]:
+                hz = value
+        sets = ['video.run="actors.video:VideoWriter"',
+                'video.inputs={rgb={from="camera/rgb", queue=256}, episode="sim/episode"}',
+                f"video.directory={json.dumps(str(self.out / 'videos'))}",
+                f"video.prefix={json.dumps(self.video_prefix(condition, modality))}",
+                f"video.episodes={min(self.video_episodes, self.episodes)}",
+                f"video.label={json.dumps(modality)}"]
+        if isinstance(hz, (int, float)) and hz > 0:
+            sets.append(f"video.fps={float(hz)}")
+        if modality in ("event", "rgb+event"):
+            sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
+        return sets
 
     def shared_sim(self) -> list[str]:
         """The policy topology's physics and rates, imposed on the expert's run.
@@ -91,7 +135,7 @@ class EvalPlan:
         common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
                   f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
                   f'tracker.label={{condition="{condition}", modality="{modality}"}}',
-                  *NAV_CONDITIONS[condition]]
+                  *NAV_CONDITIONS[condition], *self.video_overrides(condition, modality)]
         if modality == "expert":
             return self.expert_topology, common + self.shared_sim() + self.extra
         sets = [f'policy.modality="{modality}"', f'policy.directory="{self.checkpoints}"',
@@ -117,6 +161,9 @@ def run_one(plan: EvalPlan, condition: str, modality: str, bar: tqdm) -> list[di
     path = plan.episode_file(condition, modality)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
+    if plan.video:      # a rerun with fewer --video-episodes leaves no stale files behind
+        for old in (plan.out / "videos").glob(f"{plan.video_prefix(condition, modality)}__ep*"):
+            old.unlink()
     topology, overrides = plan.overrides(condition, modality)
     sup = Supervisor(load_topology(topology, overrides), runs_dir=plan.out / "runs",
                      echo=lambda text: tqdm.write(text))
@@ -157,7 +204,7 @@ def evaluate(plan: EvalPlan) -> dict:
     for condition, modality in runs:
         bar.set_postfix_str(f"{condition}/{modality}")
         have = _read_episodes(plan.episode_file(condition, modality))
-        if len(have) >= plan.episodes:
+        if len(have) >= plan.episodes and not plan.videos_missing(condition, modality):
             bar.update(plan.episodes)
             continue
         run_one(plan, condition, modality, bar)
@@ -170,6 +217,10 @@ def evaluate(plan: EvalPlan) -> dict:
                                         "seed": rec["seed"], "metrics": rec["metrics"],
                                         "trace_error_px": rec.get("trace_error_px", []),
                                         "inference_ms": rec.get("inference_ms", [])})
+    if plan.video:
+        results["videos"] = [str(q.relative_to(plan.out)) for c, m in runs
+                             for p in plan.video_files(c, m)
+                             for q in (p, p.with_suffix(".avi")) if q.exists()]
     write_outputs(results, plan.out)
     return results
 
