@@ -99,3 +99,34 @@ def test_help_does_not_import_torch():
             "import actors.policy; print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_arm_pose_is_standardised_from_the_training_targets(tmp_path):
+    """The arm head learns in a standardised pose space (stats from the training split,
+    stored in the state_dict and the config) and still outputs metres and radians."""
+    from sebvs.policy.checkpoint import load_checkpoint
+    from sebvs.policy.model import ERP
+    from sebvs.policy.train import POSE_SCALE_FLOOR, pose_stats
+    data = make_dataset(tmp_path / "arm", episodes=4, frames=12, task="arm")
+    res = train(data, tmp_path / "ckpt", "arm", ["rgb"], epochs=1, batch=8,
+                norm=Normalisation(size=32), **QUIET)["rgb"]
+    stats = res["target_stats"]
+    eps = load_index(data, "arm")
+    tr, _ = split_episodes(eps, 0.2, 0)
+    frames = EpisodeFrames(data, tr, "arm", "rgb", Normalisation(size=32))
+    want = pose_stats(frames.targets())
+    frames.close()
+    np.testing.assert_allclose(stats["mean"], want["mean"])
+    assert all(s >= f for s, f in zip(stats["scale"], POSE_SCALE_FLOOR))
+    model, cfg, _ = load_checkpoint(tmp_path / "ckpt" / "arm-rgb.pt")
+    np.testing.assert_allclose(model.head.mean.numpy(), stats["mean"], rtol=1e-6)
+    # forward = mean + scale * mlp; loss_space inverts it exactly
+    m = ERP("arm", 3, 32).eval()
+    m.head.set_target_stats([0.4, 0.1, 0.2, 3.1, 0.0, 0.0], [0.05, 0.2, 0.01, 0.05, 0.05, 0.3])
+    x = torch.rand(2, 3, 32, 32)
+    with torch.no_grad():
+        raw = m.head.mlp(m.encoder(m.tokens(m.embed(x)))[:, 0])
+        torch.testing.assert_close(m.loss_space(m(x)), raw)
+    nav = ERP("nav", 3, 32)
+    y = torch.rand(4, 2)
+    assert torch.equal(nav.loss_space(y), y)

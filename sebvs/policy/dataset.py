@@ -121,6 +121,14 @@ class EpisodeFrames:
         y = np.asarray(ep.target[t], dtype=np.float32)
         return x, y
 
+    def targets(self) -> np.ndarray:
+        """Every item's target, [N, 2] or [N, 6] float32, without reading any image."""
+        out = []
+        for ei in np.unique(self.pairs[:, 0]):
+            ts = self.pairs[self.pairs[:, 0] == ei, 1]
+            out.append(np.asarray(self._episode(int(ei)).target[:], np.float32)[ts])
+        return np.concatenate(out) if out else np.zeros((0, 6), np.float32)
+
     def episodes_of(self) -> set[str]:
         return {self.files[ei] for ei in np.unique(self.pairs[:, 0])}
 

@@ -92,8 +92,12 @@ class NavHead(nn.Module):
 class ArmHead(nn.Module):
     """PolicyHeadArm: class token [B, D] -> pose [x, y, z, roll, pitch, yaw] [B, 6].
 
-    Deeper than the nav head (two hidden layers) and unbounded: positions are metres and
-    angles radians, in the dataset's own units.
+    Deeper than the nav head (two hidden layers) and unbounded. The MLP works in a
+    standardised pose space, pose = mean + scale * mlp(cls), so that a centimetre and a few
+    degrees weigh alike in the loss (in raw units a 1 cm error is 0.01, deep in Smooth L1's
+    quadratic zone, and the constant roll of pi would dominate). `mean` and `scale` [6] are
+    buffers set from the training targets (`set_target_stats`): they travel in the
+    state_dict, so the model always outputs metres and radians.
     """
 
     def __init__(self, dim: int = 64, hidden: int = 128):
@@ -101,9 +105,20 @@ class ArmHead(nn.Module):
         self.mlp = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(),
                                  nn.Linear(hidden, hidden // 2), nn.GELU(),
                                  nn.Linear(hidden // 2, TASK_OUTPUTS["arm"]))
+        self.register_buffer("mean", torch.zeros(TASK_OUTPUTS["arm"]))
+        self.register_buffer("scale", torch.ones(TASK_OUTPUTS["arm"]))
+
+    def set_target_stats(self, mean, scale) -> None:
+        """Pose standardisation from the training targets: mean [6], scale [6] (> 0)."""
+        self.mean.copy_(torch.as_tensor(mean, dtype=self.mean.dtype))
+        self.scale.copy_(torch.as_tensor(scale, dtype=self.scale.dtype))
+
+    def standardise(self, pose: torch.Tensor) -> torch.Tensor:
+        """[B, 6] pose in metres/radians -> the MLP's space (where the loss is taken)."""
+        return (pose - self.mean) / self.scale
 
     def forward(self, cls: torch.Tensor) -> torch.Tensor:
-        return self.mlp(cls)
+        return self.mean + self.scale * self.mlp(cls)
 
 
 class ERP(nn.Module):
@@ -144,6 +159,11 @@ class ERP(nn.Module):
                              f"got {list(x.shape)}")
         h = self.encoder(self.tokens(self.embed(x)))
         return self.head(h[:, 0])
+
+    def loss_space(self, y: torch.Tensor) -> torch.Tensor:
+        """Targets or predictions in the space the training loss compares them in: the arm
+        head's standardised pose, the nav action as it is ([-1, 1] already)."""
+        return self.head.standardise(y) if isinstance(self.head, ArmHead) else y
 
 
 def count_parameters(model: nn.Module) -> int:

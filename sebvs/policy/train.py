@@ -84,7 +84,7 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
     with torch.set_grad_enabled(training):
         for x, y in bar:
             x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
-            loss = criterion(model(x), y)
+            loss = criterion(model.loss_space(model(x)), model.loss_space(y))
             if training:
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
@@ -123,7 +123,12 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     torch.use_deterministic_algorithms(True, warn_only=s.device != "cpu")
     try:
         _seed_everything(s.seed)
-        model = ERP(s.task, channels(modality), s.norm.size).to(s.device)
+        model = ERP(s.task, channels(modality), s.norm.size)
+        target_stats = None
+        if s.task == "arm":
+            target_stats = pose_stats(train_set.targets())
+            model.head.set_target_stats(target_stats["mean"], target_stats["scale"])
+        model = model.to(s.device)
         gen = torch.Generator().manual_seed(s.seed)
         train_loader = DataLoader(train_set, batch_size=s.batch, shuffle=True, generator=gen,
                                   num_workers=s.num_workers, collate_fn=_collate,
@@ -172,6 +177,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
 
     config = {**model_config(s.task, modality, s.norm),
               "parameters": count_parameters(model),
+              **({"target_stats": target_stats} if target_stats else {}),
               "dataset": {"path": str(data), "hash": dataset_hash(data, episodes),
                           "train_episodes": [e["file"] for e in train_eps],
                           "val_episodes": [e["file"] for e in val_eps],
@@ -186,6 +192,21 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     save_checkpoint(model, config, out)
     write_losses_csv(rows, out / f"{s.task}-{modality}-losses.csv")
     return config
+
+
+# Floors of the arm pose's standardisation scale: a dimension that hardly varies (roll and
+# pitch of a gripper that always points down) must not be blown up into noise.
+POSE_SCALE_FLOOR = (0.01, 0.01, 0.01, 0.05, 0.05, 0.05)     # m, m, m, rad, rad, rad
+
+
+def pose_stats(targets) -> dict:
+    """Mean and scale (std, floored by POSE_SCALE_FLOOR) of arm targets [N, 6]."""
+    import numpy as np
+    t = np.asarray(targets, dtype=np.float64).reshape(-1, 6)
+    if not len(t):
+        raise ValueError("no training targets to standardise the arm pose with")
+    return {"mean": t.mean(0).tolist(),
+            "scale": np.maximum(t.std(0), POSE_SCALE_FLOOR).tolist()}
 
 
 def write_losses_csv(rows: list[dict], path: Path) -> None:
