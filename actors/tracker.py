@@ -1,12 +1,18 @@
-"""Tracking metrics in closed loop (the paper's Table 4), from the sim's privileged truth.
+"""Closed-loop metrics sinks, from the sim's privileged truth: the paper's Table 4 (nav)
+and Table 5 (arm).
 
-Inputs  rgb      from the camera: only meta is read (truth: centroid, bbox, visible, image;
-                 episode; t_ep; control) of the samples taken at control ticks
-        action   from the policy or expert: meta modality (absent for the expert)
-        episode  from the sim: start / end with seed and reason
+Inputs  rgb      from the camera: only meta is read (truth, episode, t_ep, control) of
+                 the samples taken at control ticks
+        action   from the policy or expert: meta modality (absent for the expert) and
+                 inference_ms; the arm tracker also reads arrays["pose"]
+        episode  from the sim: start / end with seed, config, reason and outcome
 Each finished episode is appended as one JSON line to `path` (so an interrupted evaluation
-keeps what it finished), with the metrics over the whole episode and per modality segment
-(a live modality swap splits an episode).
+keeps what it finished).
+
+NavTracker   metrics over the whole episode and per modality segment (a live modality
+             swap splits an episode), the centroid-error trace.
+ArmTracker   every tick's predicted pose against the task's pose from truth (the expert's
+             rule on the true cube poses), the decision at the end and the grasp outcome.
 """
 from __future__ import annotations
 
@@ -16,13 +22,18 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sebvs.eval.metrics import nav_episode_metrics
+import numpy as np
+
+from sebvs.eval.metrics import (arm_metrics, centre_error_px, end_decision_correct,
+                                grasp_success, nav_episode_metrics)
 from sebvs.runtime import Actor, Message
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
 
 
-class NavTracker(Actor):
+class EpisodeTracker(Actor):
+    """Per-tick rows joined into one JSON line per finished episode; subclasses say what
+    the line holds (`summarise`)."""
     inputs = ("rgb", "action", "episode")
 
     @dataclass
@@ -35,9 +46,18 @@ class NavTracker(Actor):
         self.frames: dict[int, list] = defaultdict(list)   # episode -> [(tick, truth, t_ep)]
         self.modality_at: dict[int, str] = {}              # tick -> modality that acted
         self.inference_ms: dict[int, float] = {}           # tick -> policy latency
+        self.actions: dict[int, np.ndarray] = {}           # tick -> command (when kept)
         self.episodes: dict[int, dict] = {}                # episode -> start/end meta
         self.finished: list[dict] = []
         self._timers: dict[int, asyncio.TimerHandle] = {}
+
+    def keep_action(self, msg: Message) -> np.ndarray | None:
+        """The command array to keep per tick (None: only modality and latency)."""
+        return None
+
+    def summarise(self, rows: list, segments: dict, info: dict) -> dict:
+        """rows [(tick, truth, t_ep)] in tick order -> the episode's record fields."""
+        raise NotImplementedError
 
     async def on_rgb(self, msg: Message) -> None:
         m = msg.meta
@@ -52,27 +72,24 @@ class NavTracker(Actor):
         self.modality_at[msg.tick] = msg.meta.get("modality", "expert")
         if "inference_ms" in msg.meta:
             self.inference_ms[msg.tick] = float(msg.meta["inference_ms"])
+        kept = self.keep_action(msg)
+        if kept is not None:
+            self.actions[msg.tick] = kept
 
     async def on_episode(self, msg: Message) -> None:
         m = msg.meta
         ep = m.get("episode")
         info = self.episodes.setdefault(ep, {})
         if m.get("event") == "start":
-            info.update(seed=m.get("seed"), start_tick=msg.tick)
+            info.update(seed=m.get("seed"), start_tick=msg.tick, config=m.get("config", {}))
         elif m.get("event") == "end":
-            info.update(ended=True, reason=m.get("reason", ""))
+            info.update(ended=True, reason=m.get("reason", ""), outcome=m.get("outcome", {}))
             loop = asyncio.get_running_loop()
             self._timers[ep] = loop.call_later(FINALIZE_AFTER_S, self._finalize, ep)
 
-    def _metrics(self, rows: list) -> dict:
-        truths = [t for _, t, _ in rows]
-        w, h = truths[0]["image"]
-        centroids = [t["centroid"] for t in truths]
-        widths = [t["bbox"][2] - t["bbox"][0] for t in truths]
-        visible = [t["visible"] for t in truths]
+    def _duration(self, rows: list) -> float:
         # the sim publishes a control sample at both ends of an episode
-        duration = rows[-1][2] - rows[0][2] if len(rows) > 1 else 1 / self.params.control_hz
-        return nav_episode_metrics(centroids, widths, visible, (w, h), duration).as_dict()
+        return rows[-1][2] - rows[0][2] if len(rows) > 1 else 1 / self.params.control_hz
 
     def _finalize(self, ep: int) -> None:
         info = self.episodes.get(ep)
@@ -93,16 +110,14 @@ class NavTracker(Actor):
             segments[last or "none"].append(row)
         record = {**self.params.label, "episode": ep, "seed": info.get("seed"),
                   "reason": info.get("reason", ""), "ticks": len(rows),
-                  "metrics": self._metrics(rows),
-                  "by_modality": {mod: self._metrics(r) for mod, r in segments.items()},
-                  "trace_error_px": [_centre_error(t) for _, t, _ in rows],
+                  **self.summarise(rows, segments, info),
                   "inference_ms": [self.inference_ms.pop(k) for k, _, _ in rows
                                    if k in self.inference_ms]}
         for k, _, _ in rows:
             self.modality_at.pop(k, None)
+            self.actions.pop(k, None)
         self.finished.append(record)
-        self.telemetry("episode_metrics", **{k: record[k] for k in ("episode", "ticks")},
-                       success=record["metrics"]["success"])
+        self.telemetry("episode_metrics", episode=ep, ticks=record["ticks"])
         if self.params.path:
             path = Path(self.params.path)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -119,9 +134,53 @@ class NavTracker(Actor):
                 "last": self.finished[-1] if self.finished else None}
 
 
-def _centre_error(truth: dict) -> float | None:
-    """Distance of the target centroid from the image centre, px (None when not visible)."""
-    if not truth["visible"]:
-        return None
-    (u, v), (w, h) = truth["centroid"], truth["image"]
-    return round(((u - w / 2) ** 2 + (v - h / 2) ** 2) ** 0.5, 2)
+class NavTracker(EpisodeTracker):
+    """Table 4: centroid error, bbox width, success within the scaled 200 px radius."""
+
+    def _metrics(self, rows: list) -> dict:
+        truths = [t for _, t, _ in rows]
+        w, h = truths[0]["image"]
+        centroids = [t["centroid"] for t in truths]
+        widths = [t["bbox"][2] - t["bbox"][0] for t in truths]
+        visible = [t["visible"] for t in truths]
+        return nav_episode_metrics(centroids, widths, visible, (w, h),
+                                   self._duration(rows)).as_dict()
+
+    def summarise(self, rows: list, segments: dict, info: dict) -> dict:
+        return {"metrics": self._metrics(rows),
+                "by_modality": {mod: self._metrics(r) for mod, r in segments.items()},
+                "trace_error_px": [_rounded(centre_error_px(t)) for _, t, _ in rows]}
+
+
+class ArmTracker(EpisodeTracker):
+    """Table 5: each tick's predicted pose against the pose the task asks for (truth's
+    expert_pose: the expert's rule on the true cube poses), plus the end decision and the
+    grasp of the last pose that the sim's finish() ran."""
+
+    def keep_action(self, msg: Message) -> np.ndarray | None:
+        pose = msg.arrays.get("pose")
+        return None if pose is None else np.asarray(pose, np.float64).reshape(6)
+
+    def summarise(self, rows: list, segments: dict, info: dict) -> dict:
+        pairs = [(self.actions[k], t["expert_pose"]) for k, t, _ in rows if k in self.actions]
+        pred = np.array([p for p, _ in pairs]).reshape(-1, 6)
+        expert = np.array([e for _, e in pairs], dtype=np.float64).reshape(-1, 6)
+        outcome = (info.get("outcome") or {}).get("outcome")
+        objects = int((info.get("config") or {}).get("objects", 1))
+        metrics = {"scenario": "single" if objects == 1 else "multi",
+                   **arm_metrics(pred, expert),
+                   "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
+                   "modes": [t["mode"] for k, t, _ in rows if k in self.actions],
+                   "outcome": outcome, "grasp_success": grasp_success(outcome),
+                   "end_decision_correct": end_decision_correct(outcome),
+                   "duration_s": self._duration(rows)}
+        if len(pairs) < len(rows):
+            self.log.warning("episode %s: %d of %d ticks had no pose", info.get("seed"),
+                             len(rows) - len(pairs), len(rows))
+        return {"metrics": metrics,
+                "trace_error_mm": np.round(np.linalg.norm(pred[:, :3] - expert[:, :3], axis=1)
+                                           * 1e3, 2).tolist()}
+
+
+def _rounded(x: float | None) -> float | None:
+    return None if x is None else round(x, 2)

@@ -42,13 +42,17 @@ def test_arm_report_renders():
     for seed in range(4):
         for mod, off in (("rgb", 0.08), ("rgb+event", 0.01)):
             eps.append({"modality": mod, "condition": "nominal", "seed": seed,
-                        "metrics": {"scenario": "single", "pred": [off, 0, 0.2, 0, 0, 0],
-                                    "expert": [0, 0, 0.2, 0, 0, 0], "latency_ms": [3.0, 4.0],
-                                    "grasp_success": mod == "rgb+event"}})
+                        "inference_ms": [3.0, 4.0],
+                        "metrics": {"scenario": "single", "pred": [[off, 0, 0.2, 0, 0, 0]] * 2,
+                                    "expert": [[0, 0, 0.2, 0, 0, 0]] * 2,
+                                    "grasp_success": mod == "rgb+event",
+                                    "end_decision_correct": seed != 0}})
     text = render_report({"task": "arm", "episodes": eps})
     assert "## Condition: nominal, single-object" in text
-    assert "| RGB+Event | 4 | 10.0 ± 0.0 | 100.0 |" in text
-    assert "| RGB-only | 4 | 80.0 ± 0.0 | 0.0 |" in text
+    # 4 episodes, 8 predictions; grasp success; end decision 3 of 4
+    assert "| RGB+Event | 4 | 8 | 10.0 ± 0.0 | 100.0 | 3.50 / 4.00 | 100.0 [51.0, 100.0] | 75.0 |" \
+        in text, text
+    assert "| RGB-only | 4 | 8 | 80.0 ± 0.0 | 0.0 |" in text
     assert "RGB+Event vs RGB-only | 4 | +100.0" in text
 
 

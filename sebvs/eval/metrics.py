@@ -13,6 +13,10 @@ Manipulation (Table 5), per prediction:
     position error   |p_pred - p_expert| in mm
     accuracy         share within 50 mm and 15 degrees of yaw (yaw compared modulo 90
                      degrees: a cube looks the same after a quarter turn)
+and per episode, the grasp of the last prediction (the sim's finish(): sebvs/sim/arm.py):
+    grasp success    the cube lifted and held; episodes where nothing was graspable at the
+                     end (the task asked for HOME) are not grasp trials
+    end decision     HOME versus grasp at the end, against the task's rule
 """
 from __future__ import annotations
 
@@ -75,6 +79,36 @@ def nav_episode_metrics(centroids: np.ndarray, bbox_widths: np.ndarray, visible:
         success=float((ok & (err <= radius)).mean()),
         duration_s=float(duration_s),
     )
+
+
+def centre_error_px(truth: dict) -> float | None:
+    """Distance of the target centroid from the image centre, px (None when not visible):
+    the per-tick centroid error of a navigation truth dict (centroid, image, visible)."""
+    if not truth.get("visible"):
+        return None
+    (u, v), (w, h) = truth["centroid"], truth["image"]
+    return float(math.hypot(u - w / 2, v - h / 2))
+
+
+# The arm scene's end-of-episode outcomes (sebvs.sim.arm.ArmScene.finish) that are not
+# grasp trials: nothing graspable was there, whatever was commanded.
+NOT_A_GRASP_TRIAL = ("home_correct", "grasp_unwanted")
+
+
+def grasp_success(outcome: str | None) -> bool | None:
+    """True if the last pose lifted and held the target cube; None when the episode was
+    not a grasp trial (or has no outcome); False for every failure, including HOME
+    commanded while a cube was graspable ("home_missed")."""
+    if not outcome or outcome in NOT_A_GRASP_TRIAL:
+        return None
+    return outcome == "lifted_and_held"
+
+
+def end_decision_correct(outcome: str | None) -> bool | None:
+    """Did the last command choose HOME exactly when the task said HOME?"""
+    if not outcome:
+        return None
+    return outcome not in ("home_missed", "grasp_unwanted")
 
 
 def yaw_error_deg(yaw_pred, yaw_true, symmetry_deg: float = 90.0) -> np.ndarray:
