@@ -52,3 +52,34 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     again = evaluate(plan)
     assert len(list((tmp_path / "eval" / "runs").iterdir())) == runs_before
     assert [e["seed"] for e in again["episodes"]] == [e["seed"] for e in eps]
+
+
+def test_short_arm_evaluation_grasps_and_reports(tmp_path):
+    """The arm through `sebvs eval`: expert and a tiny policy, one episode each, multi-object;
+    every tick scored against the task's pose, the last pose grasped by the sim."""
+    from sebvs.policy.inputs import Normalisation
+    from sebvs.policy.train import train
+
+    data = make_dataset(tmp_path / "data", episodes=3, frames=8, height=32, width=32,
+                        task="arm")
+    train(data, tmp_path / "ckpt", "arm", ["rgb"], progress=False, log=lambda *a: None,
+          epochs=1, batch=8, norm=Normalisation(size=32))
+    plan = EvalPlan(task="arm", modalities=["rgb"], conditions=["moving"],
+                    scenarios=["multi"], episodes=1, out=tmp_path / "eval",
+                    checkpoints=str(tmp_path / "ckpt"), extra=["sim.episode_s=0.5"])
+    results = evaluate(plan)
+    eps = {e["modality"]: e for e in results["episodes"]}
+    assert set(eps) == {"expert", "rgb"} and eps["expert"]["seed"] == eps["rgb"]["seed"]
+    assert all(e["scenario"] == "multi" for e in eps.values())
+    expert = eps["expert"]["metrics"]
+    assert len(expert["pred"]) == 6 and expert["scenario"] == "multi"    # ticks 0..5
+    assert expert["position_error_mm"] < 10 and expert["accuracy"] == 1.0
+    assert expert["outcome"] == "lifted_and_held" and expert["grasp_success"] is True
+    policy = eps["rgb"]["metrics"]
+    assert policy["outcome"] and policy["grasp_success"] in (True, False)
+    assert len(eps["rgb"]["inference_ms"]) == 6
+    report = (tmp_path / "eval" / "report.md").read_text()
+    assert "## Condition: moving, multi-object" in report
+    assert "| Expert (reference) | 1 | 6 |" in report and "| RGB-only | 1 | 6 |" in report
+    assert (tmp_path / "eval" / "pose_error.png").stat().st_size > 5000
+    assert (tmp_path / "eval" / "episodes" / "moving__multi__expert.jsonl").exists()

@@ -1,4 +1,4 @@
-"""`sebvs eval`: closed-loop evaluation of policy variants (the paper's Table 4)."""
+"""`sebvs eval`: closed-loop evaluation of policy variants (the paper's Tables 4 and 5)."""
 from __future__ import annotations
 
 import argparse
@@ -7,9 +7,11 @@ from pathlib import Path
 
 
 def _cmd_eval(args) -> int:
-    from .run import EvalPlan, evaluate
+    from .run import OUTPUT_FILES, EvalPlan, evaluate
+    scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     plan = EvalPlan(task=args.task, modalities=[m for m in args.modalities.split(",") if m],
                     conditions=[c for c in args.conditions.split(",") if c],
+                    scenarios=scenarios,
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
                     seed=args.seed, checkpoints=args.checkpoints, expert=not args.no_expert,
                     extra=args.set, video=args.video, video_episodes=args.video_episodes)
@@ -20,26 +22,30 @@ def _cmd_eval(args) -> int:
         return 2
     results = evaluate(plan)
     print((plan.out / "report.md").read_text())
-    print(f"wrote {plan.out}/report.md, results.json, success.png, centroid_error.png, "
-          f"latency.png" + (f", videos/ ({len(results.get('videos', []))} files)"
-                            if plan.video else ""))
+    print(f"wrote {plan.out}/: {OUTPUT_FILES[plan.task]}"
+          + (f", videos/ ({len(results.get('videos', []))} files)" if plan.video else ""))
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from .run import NAV_CONDITIONS
+    from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS
     e = sub.add_parser(
         "eval", help="closed-loop evaluation of policies against the expert",
         description="Run every modality (and the expert, as the reference row) through the "
-                    "real topology on the same seeded episodes, per condition, and write "
-                    "report.md (the paper's tables), results.json and plots. An interrupted "
-                    "evaluation resumes: finished (condition, modality) runs are kept.")
+                    "real topology on the same seeded episodes, per condition (and, for the "
+                    "arm, per single- or multi-object scenario), and write report.md (the "
+                    "paper's Table 4 or 5), results.json and plots. The arm's episodes end "
+                    "with the sim grasping the last predicted pose. An interrupted "
+                    "evaluation resumes: finished runs are kept.")
     e.add_argument("--task", choices=["nav", "arm"], default="nav")
     e.add_argument("--modalities", default="rgb,event,rgb+event",
                    help="comma-separated: rgb, event, rgb+event")
     e.add_argument("--episodes", type=int, default=10, help="episodes per modality and condition")
     e.add_argument("--conditions", default="nominal",
-                   help=f"comma-separated: {', '.join(NAV_CONDITIONS)}")
+                   help=f"comma-separated; nav: {', '.join(NAV_CONDITIONS)}; arm: "
+                        f"{', '.join(ARM_CONDITIONS)}")
+    e.add_argument("--scenarios", default="",
+                   help=f"arm only, comma-separated: {', '.join(ARM_SCENARIOS)} (default both)")
     e.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
                    help="realtime: the policy's latency affects control, as on a robot")
     e.add_argument("--checkpoints", default="checkpoints",
@@ -47,11 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--seed", type=int, default=1000, help="topology seed (episode seeds follow)")
     e.add_argument("--no-expert", action="store_true", help="leave out the expert reference row")
     e.add_argument("--video", action="store_true",
-                   help="also write episode videos to OUT/videos/<condition>__<modality>__ep<k>"
-                        ".mp4 (rgb+event as rgb_event): per control tick the RGB frame the "
-                        "policy saw, that tick's event frame overlaid (ON blue, OFF red; event "
-                        "modalities only), the target's true bbox and centroid, and modality, "
-                        "tick and centre error")
+                   help="also write episode videos to OUT/videos/<condition>[__<scenario>]__"
+                        "<modality>__ep<k>.mp4 (rgb+event as rgb_event): per control tick the "
+                        "RGB frame the policy saw, that tick's event frame overlaid (ON blue, "
+                        "OFF red; event modalities only), the target marked from the sim's "
+                        "truth, and a caption (modality, tick, centre error or the arm's mode)")
     e.add_argument("--video-episodes", type=int, default=1, metavar="K",
                    help="with --video: the first K episodes of each run (default 1)")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",

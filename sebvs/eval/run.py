@@ -31,8 +31,9 @@ from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
 
 ROOT = Path(__file__).resolve().parents[2]
+TOPOLOGIES = ROOT / "topologies"
 
-# condition -> topology overrides (nav scene settings; see sebvs/sim/nav.py)
+# condition -> topology overrides (scene settings; see sebvs/sim/nav.py and arm.py)
 NAV_CONDITIONS: dict[str, list[str]] = {
     "nominal": [],
     "fast": ['sim.config.target_speed="fast"'],
@@ -40,9 +41,55 @@ NAV_CONDITIONS: dict[str, list[str]] = {
     "flicker": ['sim.config.lighting="flicker"'],
     "blur": ["sim.config.rgb_blur=8"],
 }
+ARM_CONDITIONS: dict[str, list[str]] = {
+    "nominal": [],                                          # static conveyor
+    "moving": ['sim.config.conveyor="moving"'],             # 8 cm/s
+    "fast": ['sim.config.conveyor="moving"', "sim.config.belt_speed=0.25"],
+    "low_light": ['sim.config.lighting="low"'],
+    "flicker": ['sim.config.lighting="flicker"'],
+    "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8"],
+}
+# scenario -> overrides: the arm's single- and multi-object (cluttered) scenes
+ARM_SCENARIOS: dict[str, list[str]] = {"single": ["sim.config.objects=1"],
+                                       "multi": ["sim.config.objects=3"]}
+
+
+@dataclass(frozen=True)
+class TaskEval:
+    """What `sebvs eval` needs to know of a task."""
+    conditions: dict[str, list[str]]
+    scenarios: dict[str, list[str]]
+    policy_topology: Path
+    expert_topology: Path
+
+
+TASKS = {
+    "nav": TaskEval(NAV_CONDITIONS, {"single": []}, TOPOLOGIES / "nav_policy.toml",
+                    TOPOLOGIES / "nav_expert.toml"),
+    "arm": TaskEval(ARM_CONDITIONS, ARM_SCENARIOS, TOPOLOGIES / "arm_policy.toml",
+                    TOPOLOGIES / "arm_expert.toml"),
+}
 MODALITIES = ("rgb", "event", "rgb+event")
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One topology run: N seeded episodes of one condition, scenario and modality."""
+    condition: str
+    scenario: str
+    modality: str
+
+    @property
+    def key(self) -> str:
+        """File stem of its episode lines and videos (the nav task has one scenario, and
+        keeps the names it always had)."""
+        parts = [self.condition] + ([self.scenario] if self.scenario != "single" else [])
+        return "__".join(parts + [self.modality.replace("+", "_")])
+
+    def __str__(self) -> str:
+        return f"{self.condition}/{self.scenario}/{self.modality}"
 
 
 @dataclass
@@ -56,23 +103,33 @@ class EvalPlan:
     seed: int = 1000
     checkpoints: str = "checkpoints"
     expert: bool = True
-    policy_topology: Path = ROOT / "topologies" / "nav_policy.toml"
-    expert_topology: Path = ROOT / "topologies" / "nav_expert.toml"
+    scenarios: list[str] | None = None      # None: every scenario of the task
+    policy_topology: Path | None = None     # None: the task's
+    expert_topology: Path | None = None
     extra: list[str] = field(default_factory=list)
     video: bool = False          # one MP4 per episode of each run ...
     video_episodes: int = 1      # ... for its first K episodes
 
+    def __post_init__(self) -> None:
+        spec = TASKS.get(self.task)
+        if spec is not None:
+            self.scenarios = list(spec.scenarios) if self.scenarios is None else self.scenarios
+            self.policy_topology = self.policy_topology or spec.policy_topology
+            self.expert_topology = self.expert_topology or spec.expert_topology
+
     def validate(self) -> None:
-        if self.task != "nav":
-            raise ValueError(f"task {self.task!r}: only 'nav' runs through `sebvs eval` so far "
-                             f"(the arm evaluation needs the grasp executor in the loop)")
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r} (one of {', '.join(TASKS)})")
+        spec = TASKS[self.task]
         unknown = [m for m in self.modalities if m not in MODALITIES]
         if unknown:
             raise ValueError(f"unknown modality {unknown[0]!r} (one of {', '.join(MODALITIES)})")
-        unknown = [c for c in self.conditions if c not in NAV_CONDITIONS]
-        if unknown:
-            raise ValueError(f"unknown condition {unknown[0]!r} "
-                             f"(one of {', '.join(NAV_CONDITIONS)})")
+        for kind, given, known in (("condition", self.conditions, spec.conditions),
+                                   ("scenario", self.scenarios, spec.scenarios)):
+            unknown = [c for c in given if c not in known]
+            if unknown:
+                raise ValueError(f"unknown {kind} {unknown[0]!r} for task {self.task} "
+                                 f"(one of {', '.join(known)})")
         if self.episodes < 1:
             raise ValueError("--episodes must be at least 1")
         if self.clock not in ("lockstep", "realtime"):
@@ -80,27 +137,23 @@ class EvalPlan:
         if self.video and self.video_episodes < 1:
             raise ValueError("--video-episodes must be at least 1")
 
-    def runs(self) -> list[tuple[str, str]]:
+    def runs(self) -> list[Run]:
         mods = (["expert"] if self.expert else []) + list(self.modalities)
-        return [(c, m) for c in self.conditions for m in mods]
+        return [Run(c, s, m) for c in self.conditions for s in self.scenarios for m in mods]
 
-    def episode_file(self, condition: str, modality: str) -> Path:
-        return self.out / "episodes" / f"{condition}__{modality.replace('+', '_')}.jsonl"
+    def episode_file(self, run: Run) -> Path:
+        return self.out / "episodes" / f"{run.key}.jsonl"
 
-    def video_prefix(self, condition: str, modality: str) -> str:
-        return f"{condition}__{modality.replace('+', '_')}"
-
-    def video_files(self, condition: str, modality: str) -> list[Path]:
+    def video_files(self, run: Run) -> list[Path]:
         """The videos a finished run leaves (.mp4; see EpisodeVideo for the .avi fallback)."""
-        prefix = self.video_prefix(condition, modality)
-        return [self.out / "videos" / f"{prefix}__ep{k}.mp4"
+        return [self.out / "videos" / f"{run.key}__ep{k}.mp4"
                 for k in range(min(self.video_episodes, self.episodes))]
 
-    def videos_missing(self, condition: str, modality: str) -> bool:
+    def videos_missing(self, run: Run) -> bool:
         return self.video and not all(p.exists() or p.with_suffix(".avi").exists()
-                                      for p in self.video_files(condition, modality))
+                                      for p in self.video_files(run))
 
-    def video_overrides(self, condition: str, modality: str) -> list[str]:
+    def video_overrides(self, run: Run) -> list[str]:
         if not self.video:
             return []
         # one frame per control tick: at the control rate the video plays in sim time
@@ -112,12 +165,12 @@ class EvalPlan:
         sets = ['video.run="actors.video:VideoWriter"',
                 'video.inputs={rgb={from="camera/rgb", queue=256}, episode="sim/episode"}',
                 f"video.directory={json.dumps(str(self.out / 'videos'))}",
-                f"video.prefix={json.dumps(self.video_prefix(condition, modality))}",
+                f"video.prefix={json.dumps(run.key)}",
                 f"video.episodes={min(self.video_episodes, self.episodes)}",
-                f"video.label={json.dumps(modality)}"]
+                f"video.label={json.dumps(run.modality)}"]
         if isinstance(hz, (int, float)) and hz > 0:
             sets.append(f"video.fps={float(hz)}")
-        if modality in ("event", "rgb+event"):
+        if run.modality in ("event", "rgb+event"):
             sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
         return sets
 
@@ -130,17 +183,19 @@ class EvalPlan:
         sim = tomllib.loads(self.policy_topology.read_text())["actors"]["sim"]
         return [f"sim.{k}={json.dumps(sim[k])}" for k in SHARED_SIM_KEYS if k in sim]
 
-    def overrides(self, condition: str, modality: str) -> tuple[Path, list[str]]:
-        path = self.episode_file(condition, modality)
+    def overrides(self, run: Run) -> tuple[Path, list[str]]:
+        spec = TASKS[self.task]
+        path = self.episode_file(run)
         common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
                   f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
-                  f'tracker.label={{condition="{condition}", modality="{modality}"}}',
-                  *NAV_CONDITIONS[condition], *self.video_overrides(condition, modality)]
-        if modality == "expert":
+                  f'tracker.label={{condition="{run.condition}", modality="{run.modality}"}}',
+                  *spec.conditions[run.condition], *spec.scenarios[run.scenario],
+                  *self.video_overrides(run)]
+        if run.modality == "expert":
             return self.expert_topology, common + self.shared_sim() + self.extra
-        sets = [f'policy.modality="{modality}"', f'policy.directory="{self.checkpoints}"',
-                f'policy.modalities=["{modality}"]']
-        if modality == "rgb":   # no events wired: emulator and accumulator are pruned
+        sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
+                f'policy.modalities=["{run.modality}"]']
+        if run.modality == "rgb":   # no events wired: emulator and accumulator are pruned
             sets.append('policy.inputs={rgb="camera/rgb"}')
         return self.policy_topology, common + sets + self.extra
 
@@ -157,14 +212,14 @@ def _read_episodes(path: Path) -> list[dict]:
     return out
 
 
-def run_one(plan: EvalPlan, condition: str, modality: str, bar: tqdm) -> list[dict]:
-    path = plan.episode_file(condition, modality)
+def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
+    path = plan.episode_file(run)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
     if plan.video:      # a rerun with fewer --video-episodes leaves no stale files behind
-        for old in (plan.out / "videos").glob(f"{plan.video_prefix(condition, modality)}__ep*"):
+        for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
             old.unlink()
-    topology, overrides = plan.overrides(condition, modality)
+    topology, overrides = plan.overrides(run)
     sup = Supervisor(load_topology(topology, overrides), runs_dir=plan.out / "runs",
                      echo=lambda text: tqdm.write(text))
     done_before = bar.n
@@ -187,12 +242,12 @@ def run_one(plan: EvalPlan, condition: str, modality: str, bar: tqdm) -> list[di
         sup.stop()
         raise
     if code != 0:
-        raise RunFailed(f"{condition}/{modality}: {sup.failure}")
+        raise RunFailed(f"{run}: {sup.failure}")
     episodes = _read_episodes(path)
     bar.update(done_before + len(episodes) - bar.n)
     if len(episodes) < plan.episodes:
-        raise RunFailed(f"{condition}/{modality}: {len(episodes)} of {plan.episodes} episodes "
-                        f"finished (see {sup.rundir}/logs)")
+        raise RunFailed(f"{run}: {len(episodes)} of {plan.episodes} episodes finished "
+                        f"(see {sup.rundir}/logs)")
     return episodes
 
 
@@ -201,25 +256,27 @@ def evaluate(plan: EvalPlan) -> dict:
     plan.out.mkdir(parents=True, exist_ok=True)
     runs = plan.runs()
     bar = tqdm(total=len(runs) * plan.episodes, unit="episode", desc="eval")
-    for condition, modality in runs:
-        bar.set_postfix_str(f"{condition}/{modality}")
-        have = _read_episodes(plan.episode_file(condition, modality))
-        if len(have) >= plan.episodes and not plan.videos_missing(condition, modality):
+    for run in runs:
+        bar.set_postfix_str(str(run))
+        have = _read_episodes(plan.episode_file(run))
+        if len(have) >= plan.episodes and not plan.videos_missing(run):
             bar.update(plan.episodes)
             continue
-        run_one(plan, condition, modality, bar)
+        run_one(plan, run, bar)
     bar.close()
     results = {"task": plan.task, "clock": plan.clock, "seed": plan.seed,
                "episodes_per_run": plan.episodes, "episodes": []}
-    for condition, modality in runs:
-        for rec in _read_episodes(plan.episode_file(condition, modality))[:plan.episodes]:
-            results["episodes"].append({"modality": modality, "condition": condition,
+    trace = "trace_error_px" if plan.task == "nav" else "trace_error_mm"
+    for run in runs:
+        for rec in _read_episodes(plan.episode_file(run))[:plan.episodes]:
+            results["episodes"].append({"modality": run.modality, "condition": run.condition,
+                                        "scenario": run.scenario,
                                         "seed": rec["seed"], "metrics": rec["metrics"],
-                                        "trace_error_px": rec.get("trace_error_px", []),
+                                        trace: rec.get(trace, []),
                                         "inference_ms": rec.get("inference_ms", [])})
     if plan.video:
-        results["videos"] = [str(q.relative_to(plan.out)) for c, m in runs
-                             for p in plan.video_files(c, m)
+        results["videos"] = [str(q.relative_to(plan.out)) for run in runs
+                             for p in plan.video_files(run)
                              for q in (p, p.with_suffix(".avi")) if q.exists()]
     write_outputs(results, plan.out)
     return results
@@ -229,29 +286,43 @@ def write_outputs(results: dict, out: Path) -> None:
     (out / "results.json").write_text(json.dumps(results, indent=1))
     (out / "report.md").write_text(render_report(results) + "\n")
     plot_success(results, out / "success.png")
-    plot_traces(results, out / "centroid_error.png")
+    if results["task"] == "nav":
+        plot_traces(results, out / "centroid_error.png", "trace_error_px",
+                    "centroid error (px); gaps: target out of view")
+    else:
+        plot_traces(results, out / "pose_error.png", "trace_error_mm",
+                    "position error against the task's pose (mm)")
     plot_latency(results, out / "latency.png")
 
 
-def plot_traces(results: dict, path: Path) -> None:
-    """Centroid error against time, one panel per condition, first episode of each modality."""
+OUTPUT_FILES = {"nav": "report.md, results.json, success.png, centroid_error.png, latency.png",
+                "arm": "report.md, results.json, success.png, pose_error.png, latency.png"}
+
+
+def plot_traces(results: dict, path: Path, key: str, what: str) -> None:
+    """A per-tick error trace against time (`key` of each episode: nav centroid error px,
+    arm position error mm), one panel per condition and scenario, the first episode of
+    each modality."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    conds = sorted({e["condition"] for e in results["episodes"]})
-    fig, axes = plt.subplots(len(conds) or 1, 1, figsize=(7, 2.4 * max(1, len(conds))),
+    groups = sorted({(e["condition"], e.get("scenario", "single"))
+                     for e in results["episodes"]})
+    fig, axes = plt.subplots(len(groups) or 1, 1, figsize=(7, 2.4 * max(1, len(groups))),
                              squeeze=False)
-    for ax, cond in zip(axes[:, 0], conds):
+    for ax, (cond, scen) in zip(axes[:, 0], groups):
         seen = set()
         for e in results["episodes"]:
-            if e["condition"] != cond or e["modality"] in seen:
+            if (e["condition"], e.get("scenario", "single")) != (cond, scen) \
+                    or e["modality"] in seen:
                 continue
             seen.add(e["modality"])
-            tr = np.array([np.nan if v is None else v for v in e["trace_error_px"]], float)
+            tr = np.array([np.nan if v is None else v for v in e.get(key, [])], float)
             ax.plot(np.arange(tr.size), tr, lw=1, label=f"{e['modality']} (seed {e['seed']})")
-        ax.set_title(f"{cond}: centroid error (px); gaps: target out of view", fontsize=9)
+        title = cond if scen == "single" and results["task"] == "nav" else f"{cond}, {scen}"
+        ax.set_title(f"{title}: {what}", fontsize=9)
         ax.set_xlabel("control tick")
         ax.legend(fontsize=7)
     fig.tight_layout()

@@ -17,6 +17,8 @@ import numpy as np
 
 from sebvs.dvs.render import event_image
 
+from .metrics import centre_error_px
+
 CAPTION_PX = 22              # height of the caption strip below the image
 EVENT_ALPHA = 0.8            # events over the RGB: opaque enough to read, the scene still shows
 BBOX_BGR = (0, 255, 0)
@@ -27,25 +29,23 @@ TEXT_BGR = (255, 255, 255)
 log = logging.getLogger(__name__)
 
 
-def centre_error_px(truth: dict) -> float | None:
-    """Distance of the target centroid from the image centre, px; None when not visible.
-
-    Same definition as the tracker's per-tick trace (the paper's centroid error), so the
-    number in a video matches `trace_error_px` of the episode's JSON line.
-    """
-    if not truth.get("visible"):
-        return None
-    (u, v), (w, h) = truth["centroid"], truth["image"]
-    return float(np.hypot(u - w / 2, v - h / 2))
-
-
 def caption(label: str, tick: int | None, truth: dict | None) -> str:
-    """The caption line of one frame: label (modality), tick, centre error."""
+    """The caption line of one frame: label (modality), tick, and the nav target's centre
+    error or the arm task's mode (grasp / home_none / home_workspace)."""
     parts = [label] if label else []
     parts.append(f"tick {tick}" if tick is not None else "tick ?")
-    err = centre_error_px(truth) if truth else None
-    parts.append(f"err {err:.1f} px" if err is not None else "target out of view")
+    if truth and "mode" in truth:
+        parts.append(truth["mode"])
+    else:
+        err = centre_error_px(truth) if truth else None
+        parts.append(f"err {err:.1f} px" if err is not None else "target out of view")
     return "  ".join(parts)
+
+
+def _arm_target(truth: dict) -> tuple[float, float] | None:
+    """The arm truth's target cube in the image (uv px), or None when there is none."""
+    t = truth.get("target", -1)
+    return tuple(truth["cubes"][t]["uv"]) if t is not None and t >= 0 else None
 
 
 def compose_frame(rgb: np.ndarray, events: np.ndarray | None, truth: dict | None,
@@ -54,10 +54,11 @@ def compose_frame(rgb: np.ndarray, events: np.ndarray | None, truth: dict | None
 
     rgb     [H, W, 3] uint8, RGB order (as the camera publishes it)
     events  [2, H, W] event counts (ON, OFF) at the RGB frame's size, or None: no overlay
-    truth   the sim's privileged truth (camera meta `truth`): centroid [u, v] px, bbox
+    truth   the sim's privileged truth (camera meta `truth`): nav centroid [u, v] px, bbox
             [u0, v0, u1, v1] px (continuous pixel coordinates, clipped to the image),
-            visible; optional image [width, height] when the truth's pixel grid differs
-            from the frame's. None or not visible: nothing marked.
+            visible; or the arm's cubes [{uv}] and target index (the target is marked);
+            optional image [width, height] when the truth's pixel grid differs from the
+            frame's. None, not visible or no target: nothing marked.
     text    one caption line (ASCII; OpenCV's Hershey fonts have no other glyphs)
     Returns [H * scale + CAPTION_PX, W * scale, 3] uint8, BGR order (OpenCV's, for
     cv2.VideoWriter). Frame pixel (u, v) covers rows v*scale .. v*scale + scale - 1 and
@@ -91,7 +92,13 @@ def compose_frame(rgb: np.ndarray, events: np.ndarray | None, truth: dict | None
     view = out[:h * scale]      # drawing stays inside the image, off the caption strip
     c = (w * scale // 2, h * scale // 2)
     cv2.drawMarker(view, c, CENTRE_BGR, cv2.MARKER_CROSS, 2 * scale + 4, 1)
-    if truth and truth.get("visible"):
+    if truth and "cubes" in truth:        # the arm: mark the task's target cube
+        iw, ih = truth.get("image", (w, h))
+        uv = _arm_target(truth)
+        if uv is not None:
+            cv2.drawMarker(view, (round(uv[0] * scale * w / iw), round(uv[1] * scale * h / ih)),
+                           CENTROID_BGR, cv2.MARKER_TILTED_CROSS, 4 * scale, 1)
+    elif truth and truth.get("visible"):
         iw, ih = truth.get("image", (w, h))
         sx, sy = scale * w / iw, scale * h / ih
         u0, v0, u1, v1 = truth["bbox"]
