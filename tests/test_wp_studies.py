@@ -104,6 +104,49 @@ def test_event_study_converges_with_the_sampling_rate():
     assert "2000 Hz" in note
 
 
+def conveyor_frames(seed, seconds=0.1, ref_hz=1000, belt_speed=0.25):
+    """(frames (N+1, 80, 80) uint8, the motion after its last frame) of the conveyor."""
+    from sebvs.eval import wp_events_run
+    m = wp_events_run.conveyor_motion(seed, ref_hz, belt_speed)
+    frames, _, _ = wp_events_run.luma_sequence(m, seconds, ref_hz)
+    return frames, m
+
+
+def test_conveyor_luma_sequence_is_seeded_and_moves():
+    a, m = conveyor_frames(seed=3)
+    b, _ = conveyor_frames(seed=3)
+    assert a.shape == (101, 80, 80) and np.array_equal(a, b)           # seeded
+    assert not np.array_equal(a[0], conveyor_frames(seed=4)[0][0])     # other cubes
+    # The cubes move: around each visible cube (its final centre, wrist image at 160 px
+    # halved) the first and last frames differ. The belt itself is a static geom whose
+    # surfacevel moves only what lies on it: its texture does not move in the image.
+    truth = m.scene.truth(m.model, m.data)
+    changed = a[0] != a[-1]
+    seen = [c for c in truth["cubes"] if c["visible"]]
+    assert seen
+    for c in seen:
+        u, v = (int(round(x / 2)) for x in c["uv"])
+        assert changed[max(v - 6, 0):v + 7, max(u - 6, 0):u + 7].any(), c
+
+
+def test_conveyor_study_points_carry_the_documented_fields():
+    from sebvs.eval import wp_events_run
+    cfg = {"ev_rates": (100, 1000), "ev_ref_hz": 2000, "ev_seconds": 0.2,
+           "ev_belt_speeds": (0.25,)}
+    l1, timing, note = wp_events_run.study(cfg, seed=0, motion="conveyor")
+    assert [p["method"] for p in l1] == [f"{p} 0.25 m/s" for p in wp_events_run.PRESETS
+                                         for _ in (100, 1000)]
+    fields = {"method", "setting", "error", "seconds", "render_s_per_frame", "emulator_s",
+              "reference_hz", "sim_seconds", "motion", "window_s", "belt_speed", "rel_l1",
+              "ts_median_us", "ts_p90_us", "count_ratio", "unmatched", "events", "ref_events"}
+    assert all(set(p) == fields for p in l1 + timing)
+    assert all(p["motion"] == "conveyor" and p["window_s"] == 0.1 for p in l1)
+    assert all(p["ref_events"] > 0 for p in l1)                      # the cubes fire events
+    assert [p["error"] for p in l1] == [p["rel_l1"] for p in timing]
+    assert all(p["error"] == p["ts_p90_us"] for p in timing)
+    assert "conveyor" in note and "2000 Hz" in note
+
+
 # ------------------------------------------------------------------ the tool's outputs
 def test_work_precision_tool_writes_the_summary_format(tmp_path, monkeypatch):
     import importlib.util
@@ -114,13 +157,20 @@ def test_work_precision_tool_writes_the_summary_format(tmp_path, monkeypatch):
     spec = importlib.util.spec_from_file_location("work_precision_tool", path)
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
+    quick = tool.settings(True)           # a shorter event study: ~1 s instead of ~4
+    monkeypatch.setattr(tool, "settings", lambda q: {**quick, "ev_rates": (100, 1000),
+                                                     "ev_ref_hz": 2000, "ev_seconds": 0.2})
     out = tmp_path / "wp"
-    assert tool.main(["--quick", "--out", str(out), "--only", "physics_nav,physics_conveyor"]) == 0
+    only = "physics_nav,physics_conveyor,events_conveyor_timing"
+    assert tool.main(["--quick", "--out", str(out), "--only", only]) == 0
     summary = json.loads((out / "summary.json").read_text())
     names = [s["name"] for s in summary["studies"]]
-    assert names == ["physics_nav", "physics_conveyor"] and summary["quick"] is True
+    assert names == only.split(",") and summary["quick"] is True
     nav = summary["studies"][0]
     assert len(nav["points"]) == 20 and nav["pareto"]
     assert set(nav["points"][0]) >= {"method", "setting", "error", "seconds"}
     assert (out / "physics_nav.png").exists() and (out / "physics_nav.csv").exists()
     assert summary["studies"][1]["points"] or "not run" in summary["studies"][1]["note"]
+    ev = summary["studies"][2]
+    assert [p["method"] for p in ev["points"]] == ["paper 0.08 m/s"] * 2 + ["clean 0.08 m/s"] * 2
+    assert ev["error_label"].startswith("p90") and (out / "events_conveyor_timing.png").exists()
