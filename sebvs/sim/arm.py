@@ -19,7 +19,10 @@ Conveyor. A static box geom whose surface moves at `belt_speed` m/s along +y
 (MuJoCo's geom surfacevel: friction carries whatever lies on it). `conveyor` "static"
 stops it, "moving" runs it during the episode, starting from rest at BELT_ACCEL (a belt
 that jumped to 3 m/s would tip every cube over). When the episode ends the belt stops (a
-stop-and-pick cell) before the last commanded pose is grasped.
+stop-and-pick cell) before the last commanded pose is grasped. surfacevel moves contacts,
+not pixels: what the camera sees of the belt is a textured skin on a mocap body that
+travels with the surface and jumps back by one texture period (invisibly, the texture
+repeats), so a running belt fires events as a real one does.
 
 Task. The arm holds the HOME pose and looks down at the belt; the command is a pre-grasp
 pose [x, y, z, roll, pitch, yaw] (m, rad, world frame), stored, not executed, while the
@@ -66,6 +69,8 @@ BELT_HALF_W = 0.16      # half width (x), m
 BELT_Y = (-0.75, 0.95)  # extent along y, m
 BELT_TOP = 0.0
 BELT_ACCEL = 0.5 * 9.81  # m/s^2 at start-up: below g * (side / height), no cube tips
+SKIN_PERIOD = 0.1       # m, the belt texture's period along y (the skin's wrap-around;
+                        # a uniform texture repeats texrepeat times per 2 m: measured)
 
 # The task's constants (the arm expert reads them from this module).
 Y_LIMIT = 0.449                         # paper: objects beyond this world y are out of reach
@@ -237,9 +242,12 @@ class ArmScene(Scene):
             f'<position name="{j}" joint="{j}" kp="{k:g}" ctrlrange="-6.2832 6.2832" '
             f'forcerange="{-t} {t}"/>' for j, k, t in zip(JOINTS, kp, TORQUE))
         gkp, gf = self._grip
+        # compiled at the largest size: reset() only shrinks a cube, and the collision
+        # bounds MuJoCo derived at compile time (aabb, rbound) stay conservative
+        big = float(c["cube_half"][1])
         cubes = "\n    ".join(
             f'<body name="cube{i}" pos="{BELT_X} {0.2 * i} 0.03"><freejoint name="cube{i}"/>'
-            f'<geom name="cube{i}" type="box" size="0.025 0.025 0.025" mass="{CUBE_MASS}" '
+            f'<geom name="cube{i}" type="box" size="{big} {big} {big}" mass="{CUBE_MASS}" '
             f'friction="1.2 0.02 0.001" rgba="0.9 0.15 0.1 1"/></body>'
             for i in range(int(c["objects"])))
         speed = float(c["belt_speed"]) if c["conveyor"] == "moving" else 0.0
@@ -260,7 +268,8 @@ class ArmScene(Scene):
     <material name="floor" texture="floor" texrepeat="8 8"/>
     <texture name="belt" type="2d" builtin="flat" rgb1="0.16 0.16 0.17" width="128" height="128"
              mark="random" random="0.08" markrgb="0.3 0.3 0.3"/>
-    <material name="belt" texture="belt" texrepeat="3 12"/>
+    <material name="belt" texture="belt" texuniform="true"
+              texrepeat="{2 / SKIN_PERIOD:g} {2 / SKIN_PERIOD:g}"/>
     <material name="link" rgba="0.75 0.77 0.8 1"/>
     <material name="joint" rgba="0.3 0.32 0.36 1"/>   <!-- unsaturated: the expert segments saturated cubes of any hue -->
     <material name="gripper" rgba="0.2 0.2 0.22 1"/>
@@ -276,8 +285,12 @@ class ArmScene(Scene):
            diffuse="{key / 2} {key / 2} {key / 2}" specular="0 0 0" castshadow="false"/>
     <geom name="pedestal" type="cylinder" size="0.08 0.375" pos="0 0 -0.375" material="frame"/>
     <geom name="belt" type="box" size="{BELT_HALF_W} {belt_len} 0.02"
-          pos="{BELT_X} {belt_mid} {BELT_TOP - 0.02}" material="belt" friction="1 0.02 0.001"
-          surfacevel="0 {speed:g} 0"/>
+          pos="{BELT_X} {belt_mid} {BELT_TOP - 0.02}" friction="1 0.02 0.001"
+          surfacevel="0 {speed:g} 0" group="3" rgba="0.16 0.16 0.17 1"/>
+    <body name="belt_skin" mocap="true" pos="{BELT_X} {belt_mid} {BELT_TOP - 0.001}">
+      <geom name="belt_skin" type="box" size="{BELT_HALF_W} {belt_len - SKIN_PERIOD} 0.001"
+            material="belt" contype="0" conaffinity="0"/>
+    </body>
     <geom name="belt_frame" type="box" size="{BELT_HALF_W + 0.02} {belt_len} 0.355"
           pos="{BELT_X} {belt_mid} {BELT_TOP - 0.395}" material="frame"/>
     <geom name="rail_l" type="box" size="0.01 {belt_len} 0.015"
@@ -318,6 +331,8 @@ class ArmScene(Scene):
         self.tcp = model.site("tcp").id
         self.cam_wrist = model.camera("wrist").id
         self.belt = model.geom("belt").id
+        self.skin = int(model.body_mocapid[model.body("belt_skin").id])
+        self.skin_y0 = float(model.body_pos[model.body("belt_skin").id][1])
         n = int(self.config["objects"])
         self.cube_body = np.array([model.body(f"cube{i}").id for i in range(n)])
         self.cube_geom = np.array([model.geom(f"cube{i}").id for i in range(n)])
@@ -362,6 +377,7 @@ class ArmScene(Scene):
             self.home_q = self._home_joints(model)
         mujoco.mj_resetData(model, data)
         model.geom_surfacevel[self.belt, 1] = 0.0        # starts from rest (scripted)
+        self.belt_travel = 0.0                           # m the surface moved (mod period)
         data.qpos[self.arm_qadr] = self.home_q
         data.ctrl[self.arm_act] = self.home_q
         data.ctrl[self.grip_act] = 0.0
@@ -385,6 +401,7 @@ class ArmScene(Scene):
             placed.append((x, y, half))
             yaw = float(rng.uniform(-math.pi / 4, math.pi / 4))
             model.geom_size[geom] = half
+            model.body_inertia[body] = CUBE_MASS * (2 * half) ** 2 / 6   # a solid cube
             model.geom_rgba[geom, :3] = PALETTE[int(colours[i % len(PALETTE)])]
             z = BELT_TOP + half + float(c["drop_height"])
             data.qpos[adr:adr + 7] = [x, y, z, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
@@ -412,7 +429,11 @@ class ArmScene(Scene):
 
     def scripted(self, model, data) -> None:
         if self.belt_speed:
-            model.geom_surfacevel[self.belt, 1] = min(self.belt_speed, BELT_ACCEL * data.time)
+            v = min(self.belt_speed, BELT_ACCEL * data.time)
+            model.geom_surfacevel[self.belt, 1] = v
+            # the skin shows the surface's motion; one period back is the same picture
+            self.belt_travel = (self.belt_travel + v * model.opt.timestep) % SKIN_PERIOD
+            data.mocap_pos[self.skin, 1] = self.skin_y0 + self.belt_travel
         self.flicker(model, data)
 
     # ------------------------------------------------------------------ state
