@@ -29,6 +29,10 @@ from sebvs.runtime.supervisor import Supervisor  # noqa: E402
 from sebvs.runtime.topology import load_topology  # noqa: E402
 
 SIZES = (64, 307_200, 1_228_800, 4_194_304)
+# Pacing per size, the same for runtime and baseline. Raw pyzmq copies a 4 MB payload
+# through the socket in about 1 ms here, so at a 1 ms pace it queues and its "latency"
+# grows without bound (we saw p50s of 0.6 s): that would measure a backlog, not a hop.
+PACING_MS = {64: 1.0, 307_200: 1.0, 1_228_800: 1.0, 4_194_304: 4.0}
 
 TOPOLOGY = """
 [topology]
@@ -115,8 +119,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="300 messages per size (< 40 s)")
     ap.add_argument("--count", type=int, default=None, help="messages per size (default 2000)")
-    ap.add_argument("--interval-ms", type=float, default=1.0,
-                    help="pacing between messages, same for both (default 1 ms)")
+    ap.add_argument("--interval-ms", type=float, default=None,
+                    help="pacing between messages, same for both (default: 1 ms, 4 ms for "
+                         "4 MB, so raw pyzmq does not queue)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     args = ap.parse_args()
     count = args.count or (300 if args.quick else 2000)
@@ -124,17 +129,24 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-hops-") as tmp:
         tmp = Path(tmp)
         for nbytes in SIZES:
-            rt = run_runtime(nbytes, count, args.interval_ms, tmp) / 1e3
-            base = run_baseline(nbytes, count, args.interval_ms, tmp) / 1e3
-            row = {"bytes": nbytes, "count": int(rt.size),
+            interval = args.interval_ms or PACING_MS[nbytes]
+            rt = run_runtime(nbytes, count, interval, tmp) / 1e3
+            base = run_baseline(nbytes, count, interval, tmp) / 1e3
+            row = {"bytes": nbytes, "count": int(rt.size), "interval_ms": interval,
                    "runtime_p50_us": round(float(np.median(rt)), 1),
                    "runtime_p99_us": round(float(np.percentile(rt, 99)), 1),
                    "baseline_p50_us": round(float(np.median(base)), 1),
                    "baseline_p99_us": round(float(np.percentile(base, 99)), 1)}
             row["ratio_p50"] = round(row["runtime_p50_us"] / row["baseline_p50_us"], 3)
+            if interval != (args.interval_ms or PACING_MS[64]):
+                # the runtime alone at the small payloads' pace, for the flatness target:
+                # a longer idle between messages costs a deeper wake-up, not payload work
+                same = run_runtime(nbytes, count, args.interval_ms or PACING_MS[64], tmp) / 1e3
+                row["runtime_p50_us_at_base_pace"] = round(float(np.median(same)), 1)
             results.append(row)
             print(json.dumps(row), file=sys.stderr)
-        prof = run_runtime(1_228_800, count, args.interval_ms, tmp, profile=True) / 1e3
+        prof = run_runtime(1_228_800, count, args.interval_ms or PACING_MS[1_228_800], tmp,
+                           profile=True) / 1e3
     by = {r["bytes"]: r for r in results}
     report = {
         "sizes": results,
@@ -145,9 +157,9 @@ def main() -> int:
         "targets": {
             "p50_1228800_le_100us": by[1_228_800]["runtime_p50_us"] <= 100,
             "ratio_1228800_le_0.6": by[1_228_800]["ratio_p50"] <= 0.6,
-            "p50_4MB_le_1.5x_64B": by[4_194_304]["runtime_p50_us"]
+            "p50_4MB_le_1.5x_64B": by[4_194_304].get("runtime_p50_us_at_base_pace",
+                                                     by[4_194_304]["runtime_p50_us"])
             <= 1.5 * by[64]["runtime_p50_us"]},
-        "interval_ms": args.interval_ms,
         "per_hop": "sender's send call -> receiver's handler start",
     }
     text = json.dumps(report, indent=2)
