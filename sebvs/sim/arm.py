@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from .ik import dls_ik, mat_to_rpy, rpy_to_mat
-from .scene import FAST_VISUAL, Scene
+from .scene import Scene
 from .stability import Limits
 
 # UR5 Denavit-Hartenberg parameters (Universal Robots' published values): per joint
@@ -99,6 +99,19 @@ def dh_forward(q) -> np.ndarray:
 
 # Arm links are visual: they never collide (only the gripper touches the world).
 VISUAL = 'contype="0" conaffinity="0"'
+
+
+def _finger(side: str, sign: int, travel: float, pad: str) -> str:
+    """One gripper finger on the +y (sign 1) or -y side: a slide joint closing toward the
+    tool axis by up to `travel` m, a visual finger and the colliding pad `pad_<side>`."""
+    return f"""<body name="finger_{side}" pos="0 {sign * (travel + PAD[1])} {TCP}" gravcomp="1">
+            <joint name="finger_{side}" type="slide" axis="0 {-sign} 0" range="0 {travel}"
+                   damping="20"/>
+            <geom type="box" size="0.008 0.005 0.05" pos="0 {sign * 0.003} -0.045" mass="0.05"
+                  material="gripper" contype="0" conaffinity="0"/>
+            <geom name="pad_{side}" type="box" size="{pad}" mass="0.02"
+                  friction="1.5 0.02 0.001" material="pad"/>
+          </body>"""
 
 
 def _quat_rx(alpha: float) -> str:
@@ -207,20 +220,8 @@ class ArmScene(Scene):
           <site name="tcp" pos="0 0 {TCP}" group="4"/>
           <camera name="wrist" pos="-0.075 0 0.03" xyaxes="0 -1 0 -1 0 0"
                   fovy="{float(self.config['fovy'])}"/>
-          <body name="finger_l" pos="0 {h + PAD[1]} {TCP}" gravcomp="1">
-            <joint name="finger_l" type="slide" axis="0 -1 0" range="0 {h}" damping="20"/>
-            <geom type="box" size="0.008 0.005 0.05" pos="0 0.003 -0.045" mass="0.05"
-                  material="gripper" contype="0" conaffinity="0"/>
-            <geom name="pad_l" type="box" size="{pad}" mass="0.02" friction="1.5 0.02 0.001"
-                  material="pad"/>
-          </body>
-          <body name="finger_r" pos="0 {-h - PAD[1]} {TCP}" gravcomp="1">
-            <joint name="finger_r" type="slide" axis="0 1 0" range="0 {h}" damping="20"/>
-            <geom type="box" size="0.008 0.005 0.05" pos="0 -0.003 -0.045" mass="0.05"
-                  material="gripper" contype="0" conaffinity="0"/>
-            <geom name="pad_r" type="box" size="{pad}" mass="0.02" friction="1.5 0.02 0.001"
-                  material="pad"/>
-          </body>
+          {_finger("l", 1, h, pad)}
+          {_finger("r", -1, h, pad)}
         </body>"""
         self._grip = (f / 0.02, f)      # kp: full force 2 cm short of the target
         return "".join(bodies) + gripper + "".join(reversed(close))
@@ -228,14 +229,8 @@ class ArmScene(Scene):
     def mjcf(self) -> str:
         c = self.config
         shadow = self.light_xml()
-        low = c["lighting"] == "low"
-        key = 0.12 if low else 0.7
-        amb = 0.04 if low else 0.3
+        key = self.light_levels()[0]
         gain = float(c["servo_gain"])
-        w, h = int(c["width"]), int(c["height"])
-        tc = float(c["contact_timeconst"])
-        contact_flag = '<flag refsafe="disable"/>' if tc > 0 else ""
-        contact_solref = f'solref="{tc} 1"' if tc > 0 else ""
         arm = self._arm_xml()
         kp = [gain * k for k in (2000, 2000, 1500, 300, 300, 100)]
         servos = "\n    ".join(
@@ -253,15 +248,7 @@ class ArmScene(Scene):
         speed = float(c["belt_speed"]) if c["conveyor"] == "moving" else 0.0
         y0, y1 = BELT_Y
         belt_len, belt_mid = (y1 - y0) / 2, (y0 + y1) / 2
-        return f"""<mujoco model="sebvs_arm">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="0.002" integrator="implicitfast">{contact_flag}</option>
-  {FAST_VISUAL}
-  <default><geom {contact_solref}/></default>
-  <visual>
-    <global offwidth="{max(w, 640)}" offheight="{max(h, 640)}"/>
-    <headlight ambient="{amb} {amb} {amb}" diffuse="0 0 0" specular="0 0 0"/>
-  </visual>
+        return f"""{self.mjcf_head("sebvs_arm")}
   <asset>
     <texture name="floor" type="2d" builtin="checker" rgb1="0.5 0.5 0.48" rgb2="0.42 0.42 0.42"
              width="256" height="256"/>

@@ -28,7 +28,7 @@ import math
 import mujoco
 import numpy as np
 
-from .scene import FAST_VISUAL, Scene
+from .scene import Scene
 from .stability import Limits
 from .trajectories import SPEEDS, TrajectoryConfig, WaypointTrajectory
 
@@ -99,10 +99,7 @@ class NavScene(Scene):
         c = self.config
         shadow = self.light_xml()
         a = float(c["arena"])
-        low = c["lighting"] == "low"
-        # Light levels: "low" is a dim scene (the event camera's case), not a black one.
-        key = 0.12 if low else 0.7
-        amb = 0.04 if low else 0.3
+        key = self.light_levels()[0]
         gain = c["servo_gain"]
         kv_v = gain * MASS / 0.05            # forward servo: 50 ms time constant
         kv_w = gain * 0.5 / 0.05             # yaw: ~0.5 kg m^2 about z (chassis + wheels)
@@ -151,19 +148,7 @@ class NavScene(Scene):
             f'euler="1.5708 0 0" rgba="0.08 0.08 0.08 1" contype="0" conaffinity="0" mass="0.5"/>'
             for i, (x, y) in enumerate(((0.17, 0.23), (0.17, -0.23), (-0.17, 0.23),
                                         (-0.17, -0.23))))
-        w, h = int(c["width"]), int(c["height"])
-        tc = float(c["contact_timeconst"])
-        contact_flag = '<flag refsafe="disable"/>' if tc > 0 else ""
-        contact_solref = f'solref="{tc} 1"' if tc > 0 else ""
-        return f"""<mujoco model="sebvs_nav_{c['variant']}">
-  <compiler angle="radian"/>
-  <option timestep="0.002" integrator="implicitfast">{contact_flag}</option>
-  {FAST_VISUAL}
-  <default><geom {contact_solref}/></default>
-  <visual>
-    <global offwidth="{max(w, 640)}" offheight="{max(h, 640)}"/>
-    <headlight ambient="{amb} {amb} {amb}" diffuse="0 0 0" specular="0 0 0"/>
-  </visual>
+        return f"""{self.mjcf_head(f"sebvs_nav_{c['variant']}")}
   <asset>{assets}
   </asset>
   <worldbody>{world}

@@ -115,6 +115,32 @@ class Scene(ABC):
         """`castshadow` attribute value for lights: shadows only when the config asks."""
         return "true" if self.config["shadows"] else "false"
 
+    def light_levels(self) -> tuple[float, float]:
+        """(key light diffuse, headlight ambient) for the config's lighting: "low" is a dim
+        scene (the event camera's case), not a black one."""
+        return (0.12, 0.04) if self.config.get("lighting") == "low" else (0.7, 0.3)
+
+    def mjcf_head(self, name: str) -> str:
+        """The opening every scene's MJCF shares, up to <asset>: compiler, option, the fast
+        render settings, an offscreen buffer for the configured image size, the headlight.
+        With config contact_timeconst > 0 every geom's contact gets that solref time
+        constant and MuJoCo's refsafe clamp (>= 2 timesteps) is off, so a stiff contact
+        is really that stiff (the stiff cases)."""
+        h, w = self.image_shape()
+        tc = float(self.config.get("contact_timeconst", 0.0) or 0.0)
+        flag = '<flag refsafe="disable"/>' if tc > 0 else ""
+        solref = f'solref="{tc} 1"' if tc > 0 else ""
+        amb = self.light_levels()[1]
+        return f"""<mujoco model="{name}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" integrator="implicitfast">{flag}</option>
+  {FAST_VISUAL}
+  <default><geom {solref}/></default>
+  <visual>
+    <global offwidth="{max(w, 640)}" offheight="{max(h, 640)}"/>
+    <headlight ambient="{amb} {amb} {amb}" diffuse="0 0 0" specular="0 0 0"/>
+  </visual>"""
+
     # -- episode -------------------------------------------------------------------------
     @abstractmethod
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData,
