@@ -293,8 +293,45 @@ def test_monitor_names_a_cube_sunk_in_the_belt_and_a_hopping_cube():
     mon.reset(data)
     data.qpos[adr + 2] += 0.03                          # lifted 3 cm with nothing touching it
     mujoco.mj_forward(model, data)
-    why = mon.check(model, data)
+    why = None
+    for _ in range(20):         # the free-body checks run every few steps
+        data.time += model.opt.timestep
+        why = why or mon.check(model, data)
     assert why and "rose" in why and "'cube0'" in why, why
+
+
+def test_a_cube_launched_by_the_gripper_may_fly_up_to_its_apex():
+    """A touch by the robot resets the reference height to where the launch can take the
+    cube (z + v_z^2 / 2g); above that apex, with nothing touching it, it is climbing."""
+    scene, model, data = build(objects=1)
+    mon = StabilityMonitor(model, scene.limits())
+    mon.reset(data)
+    watch = mon.bodies
+    body, adr = scene.cube_body[0], scene.cube_qadr[0]
+    dof = model.jnt_dofadr[model.body_jntadr[body]]
+    pad = data.geom_xpos[model.geom("pad_l").id].copy()
+    out = np.sign(pad[1] - data.site_xpos[scene.tcp][1])   # away from the other pad
+    half = scene.halves[0]
+
+    def at(z_offset, vz, touching):
+        # outside the left pad (overlapping it by 1 mm when touching), moving up at vz
+        gap = -0.001 if touching else 0.05
+        data.qpos[adr:adr + 7] = [pad[0], pad[1] + out * (0.004 + half + gap),
+                                  pad[2] + z_offset, 1, 0, 0, 0]
+        data.qvel[:] = 0
+        data.qvel[dof + 2] = vz
+        mujoco.mj_forward(model, data)
+        why = None
+        for _ in range(watch.every):
+            data.time += model.opt.timestep
+            why = why or watch.check(data)
+        return why
+
+    assert at(0.0, 1.0, touching=True) is None          # launched: apex 5.1 cm up
+    assert mon.bodies.z_ref[0] == pytest.approx(data.xpos[body, 2] + 1 / (2 * 9.81), abs=1e-3)
+    assert at(0.045, 0.1, touching=False) is None       # below the apex: fine
+    why = at(0.075, 0.0, touching=False)                # 2.4 cm above it: climbing
+    assert why and "rose" in why, why
 
 
 def test_joint_names_and_handles():

@@ -342,11 +342,13 @@ class ArmScene(Scene):
     def limits(self) -> Limits:
         speed = float(self.config["belt_speed"]) if self.config["conveyor"] == "moving" else 0.0
         fall = math.sqrt(2 * 9.81 * (float(self.config["drop_height"]) + 0.5))
-        return Limits(bounds=(-2.0, 2.5, -2.5, 2.5, -0.8, 3.0 + self.config["drop_height"]),
+        # cubes a fast belt throws off its end land and bounce metres away on the floor
+        return Limits(bounds=(-5.0, 5.0, -5.0, 5.0, -0.8, 3.0 + self.config["drop_height"]),
                       # a cube carried by the belt, falling, or swung by the gripper
                       max_speed=2 * max(speed, fall, 2.0) + 1.0,
-                      # UR5 joints turn at most ~3 rad/s; a tumbling cube spins faster
-                      max_angular=100.0,
+                      # UR5 joints turn at most ~3 rad/s; a 5 cm cube tumbling at 3 m/s
+                      # spins at ~130 rad/s
+                      max_angular=300.0,
                       max_energy_jump=20.0,
                       max_kinetic=30.0 + 0.1 * self.config["objects"] * (speed ** 2 + fall ** 2),
                       # a cube whose centre is inside the belt or its frame tunnelled
@@ -376,11 +378,12 @@ class ArmScene(Scene):
         for i, (body, geom, adr) in enumerate(zip(self.cube_body, self.cube_geom,
                                                   self.cube_qadr)):
             half = float(rng.uniform(lo, hi))
-            for _ in range(200):    # rejection sampling: keep cubes apart
+            z = BELT_TOP + half + float(c["drop_height"])
+            for _ in range(200):    # rejection sampling: keep cubes apart (and out of the
                 x = float(rng.uniform(BELT_X - BELT_HALF_W + 0.05, BELT_X + BELT_HALF_W - 0.05))
-                y = float(rng.uniform(y_lo, y_hi))
+                y = float(rng.uniform(y_lo, y_hi))       # gripper, when dropped from its height)
                 if all(math.hypot(x - px, y - py) > 1.5 * (half + ph) + c["min_gap"]
-                       for px, py, ph in placed):
+                       for px, py, ph in placed) and not _in_gripper(x, y, z, half):
                     break
             else:
                 raise RuntimeError(f"arm scene: could not place {len(self.cube_body)} cubes "
@@ -390,7 +393,6 @@ class ArmScene(Scene):
             model.geom_size[geom] = half
             model.body_inertia[body] = CUBE_MASS * (2 * half) ** 2 / 6   # a solid cube
             model.geom_rgba[geom, :3] = PALETTE[int(colours[i % len(PALETTE)])]
-            z = BELT_TOP + half + float(c["drop_height"])
             data.qpos[adr:adr + 7] = [x, y, z, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
         self.halves = np.array([p[2] for p in placed])
         self.colours = model.geom_rgba[self.cube_geom, :3].copy()
@@ -544,6 +546,12 @@ class ArmScene(Scene):
         out["outcome"] = res.reason
         out["grasp"] = res.as_dict()
         return out
+
+
+def _in_gripper(x: float, y: float, z: float, half: float) -> bool:
+    """Would a cube centred at (x, y, z) overlap the gripper at HOME (pads to flange)?"""
+    hx, hy, hz = HOME_POSE[:3]
+    return math.hypot(x - hx, y - hy) < 0.1 + half and hz - 0.03 - half < z < hz + TCP + half
 
 
 def fold_quarter(angle: float) -> float:

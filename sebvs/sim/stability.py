@@ -61,10 +61,13 @@ class Limits:
                   stiff contact (time constant below two timesteps) makes resting bodies
                   chatter and hop, slowly, under every speed and energy limit above. The
                   reference height is the body's at the episode start, at its last touch by
-                  the robot (any other non-static geom), or after it rested for rest_s; it
+                  the robot (any other non-static geom; plus the ballistic rise v_z^2 / 2g
+                  a touch may have launched it into), or after it rested for rest_s; it
                   never moves up otherwise. (Height, not energy: an integrator's energy
                   drift in free fall would be mistaken for a gain at large timesteps.)
     rest_s        s of rest (speed < 1 mm/s, spin < 0.01 rad/s) that reset the reference
+    Both free-body checks are slow phenomena and cost more than the rest together, so they
+    run every FREE_BODY_PERIOD_S of simulated time, not every step.
     """
     bounds: tuple[float, float, float, float, float, float] = (-50, 50, -50, 50, -10, 50)
     max_speed: float = 20.0
@@ -78,12 +81,90 @@ class Limits:
     rest_s: float = 0.02
 
 
+FREE_BODY_PERIOD_S = 0.005      # cadence of the free-body checks (sinking, climbing)
+
+
+class _FreeBodyWatch:
+    """The free-body checks of Limits: sinking into solid boxes, climbing while untouched.
+
+    Keeps a per-body timer (centre inside a box since) and reference height. `check`
+    returns a reason (without the "diverged: " prefix) or None."""
+
+    def __init__(self, model: mujoco.MjModel, limits: Limits) -> None:
+        self.limits = limits
+        self.model = model
+        self.names = limits.free_bodies
+        self.free = np.array([model.body(n).id for n in limits.free_bodies], dtype=int)
+        boxes = np.array([model.geom(n).id for n in limits.solid_boxes], dtype=int)
+        self.sinking = bool(boxes.size)
+        if self.sinking:       # static boxes: centre, rotation, half sizes never change
+            d = mujoco.MjData(model)
+            mujoco.mj_kinematics(model, d)
+            self.box_pos = d.geom_xpos[boxes].copy()                 # (B, 3)
+            self.box_rot = d.geom_xmat[boxes].reshape(-1, 3, 3)      # (B, 3, 3)
+            self.box_half = model.geom_size[boxes].copy()            # (B, 3)
+        self.climbing = math.isfinite(limits.passive_rise)
+        self.dof = model.jnt_dofadr[model.body_jntadr[self.free]]   # (F,) free-joint dofs
+        static = model.body_weldid[model.geom_bodyid] == 0           # (ngeom,)
+        self.robot_geom = ~static & ~np.isin(model.geom_bodyid, self.free)  # may lift a body
+        self.g = float(np.linalg.norm(model.opt.gravity))
+        self.every = max(1, round(FREE_BODY_PERIOD_S / model.opt.timestep))
+        self.calls = 0
+
+    def reset(self, data: mujoco.MjData) -> None:
+        mujoco.mj_kinematics(self.model, data)
+        self.z_ref = data.xpos[self.free, 2].copy()
+        self.rest_since = np.full(self.free.size, np.nan)
+        self.inside_since = np.full(self.free.size, np.nan)
+        self.calls = 0
+
+    def check(self, data: mujoco.MjData) -> str | None:
+        self.calls += 1
+        if self.calls % self.every:
+            return None
+        t = float(data.time)
+        if self.sinking:
+            p = data.xpos[self.free]                                          # (F, 3)
+            local = np.einsum("bji,fbj->fbi", self.box_rot, p[:, None] - self.box_pos[None])
+            inside = (np.abs(local) < self.box_half[None]).all(axis=2)        # (F, B)
+            now = inside.any(axis=1)
+            self.inside_since = np.where(now, np.fmin(self.inside_since, t), np.nan)
+            sunk = now & (t - self.inside_since >= self.limits.sink_s)
+            if sunk.any():
+                f = int(np.flatnonzero(sunk)[0])
+                b = int(np.flatnonzero(inside[f])[0])
+                return (f"body {self.names[f]!r} sank into {self.limits.solid_boxes[b]!r} at "
+                        f"{np.round(p[f], 3).tolist()} for {t - self.inside_since[f]:.3f} s "
+                        f"(t={t:.4f}s)")
+        if self.climbing:
+            z = data.xpos[self.free, 2]
+            v = data.qvel[self.dof[:, None] + np.arange(6)]                   # (F, 6)
+            touched = np.zeros(self.free.size, dtype=bool)
+            if data.ncon:
+                geoms = data.contact.geom[:data.ncon]                         # (ncon, 2)
+                robot = self.robot_geom[geoms]
+                bodies = self.model.geom_bodyid[geoms]
+                touched = np.isin(self.free, np.concatenate([bodies[robot[:, 0], 1],
+                                                             bodies[robot[:, 1], 0]]))
+            still = (np.abs(v[:, :3]).max(1) < 1e-3) & (np.abs(v[:, 3:]).max(1) < 1e-2)
+            self.rest_since = np.where(still, np.fmin(self.rest_since, t), np.nan)
+            rested = still & (t - self.rest_since >= self.limits.rest_s)
+            apex = z + np.maximum(v[:, 2], 0.0) ** 2 / (2 * self.g)   # where a launch peaks
+            self.z_ref = np.where(touched, apex, np.where(rested, z, self.z_ref))
+            rise = z - self.z_ref
+            if (rise > self.limits.passive_rise).any():
+                f = int(np.argmax(rise))
+                return (f"body {self.names[f]!r} rose {rise[f]:.3g} m with nothing but "
+                        f"static geoms or other free bodies touching it "
+                        f"(> {self.limits.passive_rise:g}) at t={t:.4f}s")
+        return None
+
+
 class StabilityMonitor:
     """Per-sim checker; holds the dof masks and the last energy."""
 
     def __init__(self, model: mujoco.MjModel, limits: Limits) -> None:
         self.limits = limits
-        self.model_ref = model
         jtype = model.jnt_type[model.dof_jntid]               # (nv,) joint type per dof
         free = mujoco.mjtJoint.mjJNT_FREE
         slide = mujoco.mjtJoint.mjJNT_SLIDE
@@ -102,33 +183,15 @@ class StabilityMonitor:
         self.last_energy: float | None = None
         self.warn_idx = np.array([int(w) for w in _FATAL_WARNINGS.values()])
         self.warnings0 = np.zeros(len(self.warn_idx), np.int64)
-        self.inside_since: float | None = None
-        # static boxes: centre, rotation, half sizes are fixed; kept as arrays for one
-        # vectorised containment test of every free body in every box
-        self.boxes = np.array([model.geom(n).id for n in limits.solid_boxes], dtype=int)
-        self.free = np.array([model.body(n).id for n in limits.free_bodies], dtype=int)
-        # passive free bodies: free-joint dof address, which geoms count as the robot
-        self.passive = self.free.size > 0 and math.isfinite(limits.passive_rise)
-        if self.passive:
-            self.dof = model.jnt_dofadr[model.body_jntadr[self.free]]       # (F,)
-            static = model.body_weldid[model.geom_bodyid] == 0               # (ngeom,)
-            freeg = np.isin(model.geom_bodyid, self.free)
-            self.robot_geom = ~static & ~freeg          # what may lift a body
-        if self.boxes.size:
-            d = mujoco.MjData(model)
-            mujoco.mj_kinematics(model, d)
-            self.box_pos = d.geom_xpos[self.boxes].copy()            # (B, 3)
-            self.box_rot = d.geom_xmat[self.boxes].reshape(-1, 3, 3)  # (B, 3, 3)
-            self.box_half = model.geom_size[self.boxes].copy()        # (B, 3)
+        watched = limits.free_bodies and (limits.solid_boxes
+                                          or math.isfinite(limits.passive_rise))
+        self.bodies = _FreeBodyWatch(model, limits) if watched else None
 
     def reset(self, data: mujoco.MjData) -> None:
         """Call after an episode reset (clears the energy reference and warning counts)."""
         self.last_energy = None
-        self.inside_since = None
-        if self.passive:
-            mujoco.mj_kinematics(self.model_ref, data)
-            self.z_ref = data.xpos[self.free, 2].copy()
-            self.rest_since = np.full(self.free.size, np.nan)
+        if self.bodies is not None:
+            self.bodies.reset(data)
         self.warnings0 = np.array(data.warning.number, dtype=np.int64)[self.warn_idx]
 
     def check(self, model: mujoco.MjModel, data: mujoco.MjData) -> str | None:
@@ -149,47 +212,12 @@ class StabilityMonitor:
             and (not self.n_ang or qv[self.angular].max() <= lim.max_angular) \
             and (pos >= self.lo).all() and (pos <= self.hi).all() \
             and np.isfinite(data.qpos).all() and jump <= lim.max_energy_jump \
-            and (not self.energy_on or data.energy[1] <= lim.max_kinetic) \
-            and not self._sunk(data) and not self._climbed(data)
-        if ok:
-            self.last_energy = e
-            return None
-        return self._diagnose(model, data, qv, pos, e, jump)
-
-    def _inside(self, data: mujoco.MjData) -> np.ndarray:
-        """(F, B) bool: free body f's centre lies inside solid box b."""
-        p = data.xpos[self.free]                                      # (F, 3)
-        local = np.einsum("bji,fbj->fbi", self.box_rot, p[:, None, :] - self.box_pos[None])
-        return (np.abs(local) < self.box_half[None]).all(axis=2)
-
-    def _climbed(self, data: mujoco.MjData) -> bool:
-        """Some passive free body rose more than passive_rise above its reference."""
-        if not self.passive:
-            return False
-        z = data.xpos[self.free, 2]
-        touched = np.zeros(self.free.size, dtype=bool)
-        if data.ncon:
-            geoms = data.contact.geom[:data.ncon]                             # (ncon, 2)
-            robot = self.robot_geom[geoms]
-            bodies = self.model_ref.geom_bodyid[geoms]
-            hit = np.concatenate([bodies[robot[:, 0], 1], bodies[robot[:, 1], 0]])
-            touched = np.isin(self.free, hit)
-        v = data.qvel[self.dof[:, None] + np.arange(6)]                      # (F, 6)
-        still = (np.abs(v[:, :3]).max(1) < 1e-3) & (np.abs(v[:, 3:]).max(1) < 1e-2)
-        self.rest_since = np.where(still, np.where(np.isnan(self.rest_since), data.time,
-                                                   self.rest_since), np.nan)
-        rested = still & (data.time - self.rest_since >= self.limits.rest_s)
-        self.z_ref = np.where(touched | rested, z, self.z_ref)
-        return bool((z - self.z_ref > self.limits.passive_rise).any())
-
-    def _sunk(self, data: mujoco.MjData) -> bool:
-        """Some free body's centre has been inside a solid box for sink_s or longer."""
-        if not (self.boxes.size and self.free.size) or not self._inside(data).any():
-            self.inside_since = None
-            return False
-        if self.inside_since is None:
-            self.inside_since = float(data.time)
-        return data.time - self.inside_since >= self.limits.sink_s
+            and (not self.energy_on or data.energy[1] <= lim.max_kinetic)
+        if not ok:
+            return self._diagnose(model, data, qv, pos, e, jump)
+        self.last_energy = e
+        why = self.bodies.check(data) if self.bodies is not None else None
+        return f"diverged: {why}" if why else None
 
     def _diagnose(self, model, data, qv, pos, e, jump) -> str:
         lim, t = self.limits, f"t={data.time:.4f}s"
@@ -211,19 +239,6 @@ class StabilityMonitor:
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}"
             return (f"diverged: body {name!r} left the world bounds at "
                     f"{np.round(data.xpos[b], 3).tolist()} ({t})")
-        if self.passive and (data.xpos[self.free, 2] - self.z_ref
-                             > self.limits.passive_rise).any():
-            rise = data.xpos[self.free, 2] - self.z_ref
-            f = int(np.argmax(rise))
-            return (f"diverged: body {self.limits.free_bodies[f]!r} rose {rise[f]:.3g} m "
-                    f"with nothing but static geoms or other free bodies touching it "
-                    f"(> {self.limits.passive_rise:g}) at {t}")
-        if self._sunk(data):
-            f, b = np.argwhere(self._inside(data))[0]
-            return (f"diverged: body {self.limits.free_bodies[f]!r} sank into "
-                    f"{self.limits.solid_boxes[b]!r} at "
-                    f"{np.round(data.xpos[self.free[f]], 3).tolist()} for "
-                    f"{data.time - self.inside_since:.3f} s ({t})")
         if not np.isfinite(e):
             return f"diverged: non-finite energy at {t}"
         if not jump <= lim.max_energy_jump:
