@@ -27,9 +27,54 @@ def test_quick_grid_has_no_silent_blow_up(result):
 def test_quick_grid_covers_every_kind_and_class_counts_add_up(result):
     counts = result["counts"]
     assert sum(counts.values()) == len(result["cases"])
-    assert {"nav_servo", "nav_contact", "belt"} <= set(result["by_kind"])
+    assert {"nav_servo", "nav_contact", "belt", "arm"} <= set(result["by_kind"])
     # the stiff settings must really blow up somewhere, or the grid proves nothing
     assert counts["detected"] > 0 and counts["stable"] > 0
+
+
+def test_arm_plausibility_passes_the_physical_and_flags_the_impossible():
+    """The independent test must itself be right about the arm scene's physics: a cube
+    resting on the belt or lying on the floor past the belt's end is physical; a cube
+    wholly inside the frame, one ending with its centre in the belt, one above its drop
+    point, one faster than belt and fall can make it, or the tcp off HOME is not."""
+    import mujoco
+    import numpy as np
+    from sebvs.sim.arm import BELT_TOP
+    model, data, _, _, plausible = st._arm({"timestep": 0.002, "integrator": "discrete"})
+    scene = plausible.scene
+    adr, half = scene.cube_qadr[0], scene.halves[0]
+    dof = model.jnt_dofadr[model.body_jntadr[scene.cube_body[0]]]
+
+    def put(x, y, z):           # cube 0, upright, at rest
+        data.qpos[adr:adr + 7] = [x, y, z, 1, 0, 0, 0]
+        data.qvel[dof:dof + 6] = 0
+        mujoco.mj_forward(model, data)
+
+    assert plausible(model, data, end=True) is None
+    put(0.45, 1.3, -0.75 + half)                        # rode off the end to the floor
+    assert plausible(model, data, end=True) is None
+    put(0.45, 0.0, -0.3)
+    assert "wholly inside" in plausible(model, data)
+    put(0.45, 0.0, BELT_TOP - 0.3 * half)               # part of it still out
+    assert plausible(model, data) is None
+    assert "sunk" in plausible(model, data, end=True)
+    put(0.45, 0.0, 0.5)
+    assert "rose" in plausible(model, data)
+    put(0.45, 0.0, BELT_TOP + half)
+    data.qvel[dof] = 10.0                                # a 2 mm drop gives 3.9 m/s at most
+    assert "speed" in plausible(model, data)
+    data.qvel[dof] = 0.0
+    data.qvel[dof + 3] = 500.0                           # spinning, not moving
+    assert "kinetic energy" in plausible(model, data)
+    data.qvel[dof + 3] = 0.0
+    data.qvel[model.jnt_dofadr[scene.joint_ids[0]]] = 3.0    # the arm swinging at HOME
+    assert "arm kinetic energy" in plausible(model, data)
+    data.qvel[:] = 0.0
+    data.qpos[scene.arm_qadr[0]] += 0.2                  # shoulder turned: tcp ~9 cm away
+    mujoco.mj_forward(model, data)
+    assert "from HOME" in plausible(model, data)
+    data.qpos[adr + 2] = np.nan
+    assert plausible(model, data) == "non-finite state"
 
 
 def test_classification_of_exceptions():
