@@ -42,6 +42,15 @@ def test_timestamp_errors_match_nearest_same_pixel_and_polarity():
     assert sorted(err.tolist()) == [300, 600, 1000, 2000] and unmatched == 1
 
 
+def test_timestamp_errors_with_test_pixels_beyond_every_reference_pixel():
+    # The reference fires only at the first pixel; test events at the last pixel sort after
+    # all of it (the case that once indexed past the reference's end).
+    ref = stream((1000, 0, 0, 1), (3000, 0, 0, 1))
+    test = stream((1100, 0, 0, 1), (500, 1, 1, -1), (900, 1, 1, 1))
+    err, unmatched = ev.timestamp_errors(test, ref, (2, 2))
+    assert err.tolist() == [100] and unmatched == 2
+
+
 def test_event_errors_of_identical_streams():
     s = stream((10, 0, 0, 1), (20, 1, 1, -1), (70, 1, 0, 1))
     m = ev.event_errors(s, s, (2, 2), 0, 50, 2)

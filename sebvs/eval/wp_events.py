@@ -79,7 +79,9 @@ def timestamp_errors(test: tuple, ref: tuple, shape: tuple[int, int]) -> tuple[n
     hi = np.searchsorted(cr, (kt + 1) * span, side="left")    # one past its last
     has = hi > lo
     idx = np.searchsorted(cr, ct, side="left")
-    last = np.maximum(hi - 1, lo)
+    # A test event whose block sorts after every reference event has lo == hi == len(cr);
+    # such events are unmatched, and their indices are only kept in range to be masked.
+    last = np.minimum(np.maximum(hi - 1, lo), len(cr) - 1)
     right = np.clip(idx, lo, last)
     left = np.clip(idx - 1, lo, last)
     err = np.minimum(np.abs(cr[right] - ct), np.abs(cr[left] - ct))
