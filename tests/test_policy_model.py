@@ -14,8 +14,8 @@ torch.set_num_threads(1)
 
 
 @pytest.mark.parametrize("modality, ch, nav_params, arm_params", [
-    ("rgb", 3, 103_682, 116_358), ("event", 2, 87_298, 99_974),
-    ("rgb+event", 5, 136_450, 149_126)])
+    ("rgb", 3, 103_682, 116_423), ("event", 2, 87_298, 100_039),
+    ("rgb+event", 5, 136_450, 149_191)])
 def test_variants_differ_only_in_input_channels(modality, ch, nav_params, arm_params):
     assert channels(modality) == ch
     nav, arm = ERP("nav", ch, 64), ERP("arm", ch, 64)

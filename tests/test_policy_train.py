@@ -2,6 +2,7 @@
 the lazy dataset and the `sebvs train` command."""
 import csv
 import json
+import math
 import subprocess
 import sys
 
@@ -120,13 +121,30 @@ def test_arm_pose_is_standardised_from_the_training_targets(tmp_path):
     assert all(s >= f for s, f in zip(stats["scale"], POSE_SCALE_FLOOR))
     model, cfg, _ = load_checkpoint(tmp_path / "ckpt" / "arm-rgb.pt")
     np.testing.assert_allclose(model.head.mean.numpy(), stats["mean"], rtol=1e-6)
-    # forward = mean + scale * mlp; loss_space inverts it exactly
+    # forward = mean + scale * mlp for x..pitch; loss_space inverts it exactly, and gives
+    # the yaw pair back as the mlp's unit vector
     m = ERP("arm", 3, 32).eval()
     m.head.set_target_stats([0.4, 0.1, 0.2, 3.1, 0.0, 0.0], [0.05, 0.2, 0.01, 0.05, 0.05, 0.3])
     x = torch.rand(2, 3, 32, 32)
     with torch.no_grad():
         raw = m.head.mlp(m.encoder(m.tokens(m.embed(x)))[:, 0])
-        torch.testing.assert_close(m.loss_space(m(x)), raw)
+        enc = m.loss_space(m(x))
+        torch.testing.assert_close(enc[:, :5], raw[:, :5])
+        torch.testing.assert_close(enc[:, 5:], raw[:, 5:] / raw[:, 5:].norm(dim=1, keepdim=True))
     nav = ERP("nav", 3, 32)
     y = torch.rand(4, 2)
     assert torch.equal(nav.loss_space(y), y)
+
+
+def test_arm_yaw_is_encoded_continuously_across_the_cube_fold():
+    """Yaw labels are folded into [-45, 45) degrees: two cubes a hair either side of 45
+    degrees look alike and must be near in the loss space, far apart as raw angles."""
+    from sebvs.policy.model import ERP
+    m = ERP("arm", 3, 32)
+    near = torch.tensor([[0.4, 0.1, 0.2, 3.14, 0.0, math.radians(44.9)],
+                         [0.4, 0.1, 0.2, 3.14, 0.0, math.radians(-44.9)]])
+    enc = m.loss_space(near)
+    assert (enc[0] - enc[1]).abs().max() < 0.02
+    # decode(encode(pose)) is the pose, yaw in (-45, 45]
+    poses = torch.tensor([[0.4, 0.1, 0.2, 3.14, 0.01, math.radians(a)] for a in (-44, -10, 0, 30)])
+    torch.testing.assert_close(m.head.decode(m.loss_space(poses)), poses, atol=1e-5, rtol=0)

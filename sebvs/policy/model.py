@@ -92,19 +92,26 @@ class NavHead(nn.Module):
 class ArmHead(nn.Module):
     """PolicyHeadArm: class token [B, D] -> pose [x, y, z, roll, pitch, yaw] [B, 6].
 
-    Deeper than the nav head (two hidden layers) and unbounded. The MLP works in a
-    standardised pose space, pose = mean + scale * mlp(cls), so that a centimetre and a few
-    degrees weigh alike in the loss (in raw units a 1 cm error is 0.01, deep in Smooth L1's
-    quadratic zone, and the constant roll of pi would dominate). `mean` and `scale` [6] are
-    buffers set from the training targets (`set_target_stats`): they travel in the
-    state_dict, so the model always outputs metres and radians.
+    Deeper than the nav head (two hidden layers) and unbounded. The MLP's 7 outputs live in
+    the loss space (`encode`): x, y, z, roll and pitch standardised, pose = mean + scale * u,
+    so that a centimetre and a few degrees weigh alike in the loss (in raw units a 1 cm error
+    is 0.01, deep in Smooth L1's quadratic zone, and the constant roll of pi would dominate);
+    and the yaw as (cos 4 yaw, sin 4 yaw). A cube looks the same a quarter turn on, so its
+    yaw label is folded into [-45, 45) degrees and jumps from one end to the other where the
+    cube's faces pass 45 degrees: a regressed angle learns the mean there, the 4-fold unit
+    vector is continuous. `mean` and `scale` [6] are buffers set from the training targets
+    (`set_target_stats`; the yaw's entries are unused): they travel in the state_dict, so
+    the model always outputs metres and radians, yaw in (-pi/4, pi/4].
     """
+
+    YAW_FOLD = 4            # the cube's rotational symmetry about the vertical
+    LOSS_DIMS = 7           # 5 standardised + (cos, sin) of the folded yaw
 
     def __init__(self, dim: int = 64, hidden: int = 128):
         super().__init__()
         self.mlp = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(),
                                  nn.Linear(hidden, hidden // 2), nn.GELU(),
-                                 nn.Linear(hidden // 2, TASK_OUTPUTS["arm"]))
+                                 nn.Linear(hidden // 2, self.LOSS_DIMS))
         self.register_buffer("mean", torch.zeros(TASK_OUTPUTS["arm"]))
         self.register_buffer("scale", torch.ones(TASK_OUTPUTS["arm"]))
 
@@ -113,12 +120,20 @@ class ArmHead(nn.Module):
         self.mean.copy_(torch.as_tensor(mean, dtype=self.mean.dtype))
         self.scale.copy_(torch.as_tensor(scale, dtype=self.scale.dtype))
 
-    def standardise(self, pose: torch.Tensor) -> torch.Tensor:
-        """[B, 6] pose in metres/radians -> the MLP's space (where the loss is taken)."""
-        return (pose - self.mean) / self.scale
+    def encode(self, pose: torch.Tensor) -> torch.Tensor:
+        """[B, 6] pose in metres/radians -> [B, 7] loss space (where the loss is taken)."""
+        lin = (pose[:, :5] - self.mean[:5]) / self.scale[:5]
+        k = self.YAW_FOLD * pose[:, 5:6]
+        return torch.cat([lin, torch.cos(k), torch.sin(k)], dim=1)
+
+    def decode(self, u: torch.Tensor) -> torch.Tensor:
+        """[B, 7] loss space -> [B, 6] pose; the (cos, sin) pair need not be unit length."""
+        lin = self.mean[:5] + self.scale[:5] * u[:, :5]
+        yaw = torch.atan2(u[:, 6:7], u[:, 5:6]) / self.YAW_FOLD
+        return torch.cat([lin, yaw], dim=1)
 
     def forward(self, cls: torch.Tensor) -> torch.Tensor:
-        return self.mean + self.scale * self.mlp(cls)
+        return self.decode(self.mlp(cls))
 
 
 class ERP(nn.Module):
@@ -162,8 +177,9 @@ class ERP(nn.Module):
 
     def loss_space(self, y: torch.Tensor) -> torch.Tensor:
         """Targets or predictions in the space the training loss compares them in: the arm
-        head's standardised pose, the nav action as it is ([-1, 1] already)."""
-        return self.head.standardise(y) if isinstance(self.head, ArmHead) else y
+        head's encoding [B, 7] (a prediction's yaw pair comes back unit length), the nav
+        action as it is ([-1, 1] already)."""
+        return self.head.encode(y) if isinstance(self.head, ArmHead) else y
 
 
 def count_parameters(model: nn.Module) -> int:
