@@ -75,6 +75,60 @@ def test_dataset_reads_frames_lazily(tmp_path):
     ds.close()
 
 
+def test_dataset_keeps_a_bounded_set_of_episodes_open(tmp_path, monkeypatch):
+    import sebvs.policy.dataset as dataset
+    monkeypatch.setattr(dataset, "OPEN_EPISODES", 2)
+    root = make_dataset(tmp_path, episodes=4, frames=3, task="arm")
+    eps = load_index(root)
+    ds = EpisodeFrames(root, eps, "arm", "rgb", Normalisation(size=32))
+    first = [ds[i][1] for i in range(len(ds))]          # walks all 4 episodes
+    assert ds.open_episodes() == 2 and list(ds._handles) == [2, 3]
+    again = [ds[i][1] for i in reversed(range(len(ds)))]  # reopens the evicted ones
+    assert all(np.array_equal(a, b) for a, b in zip(first, reversed(again)))
+    assert ds.open_episodes() == 2
+    ds.close()
+
+
+def test_episode_block_sampler_shuffles_within_blocks_of_episodes():
+    from sebvs.policy.dataset import EpisodeBlockSampler
+    episode_of_item = np.repeat(np.arange(10), [3, 1, 4, 2, 5, 3, 1, 2, 6, 3])
+    s = EpisodeBlockSampler(episode_of_item, block=3, generator=torch.Generator().manual_seed(0))
+    order = list(s)
+    assert sorted(order) == list(range(len(episode_of_item))) and len(s) == len(order)
+    # episodes in the order they first appear, in groups of 3: each group's items fill one
+    # contiguous span of the order (a block), so at most 3 episodes are read at a time
+    eps_in_order = list(dict.fromkeys(int(episode_of_item[i]) for i in order))
+    where = np.empty(len(order), int)
+    where[order] = np.arange(len(order))
+    for k in range(0, 10, 3):
+        pos = np.sort(where[np.isin(episode_of_item, eps_in_order[k:k + 3])])
+        assert pos[-1] - pos[0] + 1 == len(pos)
+    again = list(EpisodeBlockSampler(episode_of_item, 3, torch.Generator().manual_seed(0)))
+    other = list(EpisodeBlockSampler(episode_of_item, 3, torch.Generator().manual_seed(1)))
+    assert again == order and other != order
+    assert order != sorted(order)
+    with pytest.raises(ValueError, match="block"):
+        EpisodeBlockSampler(episode_of_item, 0)
+
+
+def test_large_training_sets_use_the_block_sampler(tmp_path, monkeypatch):
+    import sebvs.policy.train as train_mod
+    made = []
+
+    class Spy(train_mod.EpisodeBlockSampler):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+
+    monkeypatch.setattr(train_mod, "OPEN_EPISODES", 2)
+    monkeypatch.setattr(train_mod, "EpisodeBlockSampler", Spy)
+    data = make_dataset(tmp_path / "arm", episodes=6, frames=4, task="arm")
+    res = train(data, tmp_path / "ckpt", "arm", ["rgb"], epochs=1, batch=4,
+                norm=Normalisation(size=32), **QUIET)["rgb"]
+    assert len(made) == 1 and made[0].block == 2 and len(made[0]) == 20   # 5 train episodes
+    assert res["training"]["epochs_run"] == 1 and math.isfinite(res["training"]["best_val_loss"])
+
+
 def test_cli_trains_all_modalities_and_plots(tmp_path):
     data = make_dataset(tmp_path / "data", episodes=4, frames=8, task="arm")
     out = tmp_path / "out"

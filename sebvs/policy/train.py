@@ -21,7 +21,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .checkpoint import model_config, save_checkpoint
-from .dataset import EpisodeFrames, dataset_hash, load_index, split_episodes
+from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, dataset_hash,
+                      load_index, split_episodes)
 from .inputs import MODALITIES, Normalisation, channels, check_modality
 
 
@@ -130,7 +131,11 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
             model.head.set_target_stats(target_stats["mean"], target_stats["scale"])
         model = model.to(s.device)
         gen = torch.Generator().manual_seed(s.seed)
-        train_loader = DataLoader(train_set, batch_size=s.batch, shuffle=True, generator=gen,
+        # Up to OPEN_EPISODES training episodes, a plain shuffle (every file stays open);
+        # beyond, shuffled blocks of episodes so that a file is opened once per epoch.
+        order = ({"shuffle": True, "generator": gen} if len(train_eps) <= OPEN_EPISODES else
+                 {"sampler": EpisodeBlockSampler(train_set.pairs[:, 0], OPEN_EPISODES, gen)})
+        train_loader = DataLoader(train_set, batch_size=s.batch, **order,
                                   num_workers=s.num_workers, collate_fn=_collate,
                                   persistent_workers=s.num_workers > 0)
         val_loader = DataLoader(val_set, batch_size=s.batch, shuffle=False,
