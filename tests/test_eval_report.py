@@ -56,6 +56,22 @@ def test_arm_report_renders():
     assert "RGB+Event vs RGB-only | 4 | +100.0" in text
 
 
+def test_arm_success_plot_with_certain_outcomes(tmp_path):
+    """All grasps succeed or all fail: the Wilson bound may miss 0 or 1 by a rounding
+    error, which once made matplotlib refuse a negative error bar."""
+    eps = [{"modality": mod, "condition": "nominal", "scenario": scen, "seed": seed,
+            "inference_ms": [1.0],
+            "metrics": {"scenario": scen, "pred": [[0, 0, 0.2, 0, 0, 0]],
+                        "expert": [[0, 0, 0.2, 0, 0, 0]], "grasp_success": mod == "expert",
+                        "end_decision_correct": True}}
+           for seed in range(14) for mod in ("expert", "rgb") for scen in ("single",)]
+    # the Wilson upper bound of 14 successes in 14 is 1 - 1e-16
+    from sebvs.eval.metrics import wilson_interval
+    assert wilson_interval(14, 14)[1] < 1.0
+    plot_success({"task": "arm", "episodes": eps}, tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 5000
+
+
 def test_unknown_task_is_an_error():
     with pytest.raises(ValueError, match="unknown task"):
         render_report({"task": "fly", "episodes": []})

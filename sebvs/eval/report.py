@@ -185,14 +185,19 @@ def plot_success(results: dict, path) -> None:
 
     eps = results["episodes"]
     nav = results["task"] == "nav"
-    conds = sorted({e["condition"] for e in eps})
+    # one bar group per condition (nav) or per condition and scenario (arm: single and
+    # multi-object are separate tables, so they are separate groups here too)
+    keys = ("condition",) if nav else ("condition", "scenario")
+    groups = _group(eps, *keys)
+    conds = sorted(groups)
+    labels = ["\n".join(str(k) for k in c if k is not None) for c in conds]
     mods = _ordered({e["modality"] for e in eps})
     fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(conds), 3.6))
     width = 0.8 / max(1, len(mods))
     for j, mod in enumerate(mods):
         vals, errs = [], [[], []]
         for cond in conds:
-            group = [e for e in eps if e["condition"] == cond and e["modality"] == mod]
+            group = [e for e in groups[cond] if e["modality"] == mod]
             if not group:
                 vals.append(np.nan)
                 errs[0].append(0)
@@ -202,11 +207,12 @@ def plot_success(results: dict, path) -> None:
             v = a["success"] if nav else a["grasp_success"]
             lo, hi = a["success_ci95"] if nav else a["grasp_success_ci95"]
             vals.append(100 * v)
-            errs[0].append(100 * (v - lo) if not math.isnan(lo) else 0)
-            errs[1].append(100 * (hi - v) if not math.isnan(hi) else 0)
+            # max(0, ...): at 0 % or 100 % the Wilson bound can miss v by a rounding error
+            errs[0].append(max(0.0, 100 * (v - lo)) if not math.isnan(lo) else 0)
+            errs[1].append(max(0.0, 100 * (hi - v)) if not math.isnan(hi) else 0)
         x = np.arange(len(conds)) + (j - (len(mods) - 1) / 2) * width
         ax.bar(x, vals, width, yerr=errs, capsize=3, label=NAME.get(mod, mod))
-    ax.set_xticks(np.arange(len(conds)), conds)
+    ax.set_xticks(np.arange(len(conds)), labels)
     ax.set_ylim(0, 105)
     ax.set_ylabel("success rate (%)" if nav else "grasp success (%)")
     ax.legend(fontsize=8, loc="lower left")
