@@ -142,11 +142,18 @@ def test_camera_renders_consumed_outputs_and_luma_on_every_control_sample():
     assert cam.counts["no_model"] == 0
 
 
+def test_default_rates_are_accepted():
+    # the defaults are docs/numerics.md's (discrete, 1 kHz) and pass the actor's own checks
+    sim, _ = make_sim(render_hz=Sim.Params().render_hz)      # every rate at its default
+    assert sim.params.integrator == "discrete" and sim.params.physics_hz == 1000.0
+    assert sim.steps_per_render == 5 and sim.steps_per_control == 50
+
+
 def test_bad_rates_are_refused():
     with pytest.raises(ValueError, match="multiple"):
         make_sim(control_hz=20.0, render_hz=50.0)
     with pytest.raises(ValueError, match="render_hz 200 must divide physics_hz 500"):
-        make_sim(render_hz=200.0)
+        make_sim(physics_hz=500.0, render_hz=200.0)
     with pytest.raises(ValueError, match="'integrator' as a sim parameter"):
         make_sim(config={"integrator": "rk4"})
     with pytest.raises(ValueError, match="'colour'"):
