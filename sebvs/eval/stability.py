@@ -347,7 +347,8 @@ class ArmPlausibility:
     def _solids(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
         """World-aligned (lo, hi) corners (B, 3) of the conveyor's static boxes, from the
         model's geoms (belt, frame, rails are world children without rotation)."""
-        ids = [model.geom(n).id for n in ("belt", "belt_frame", "rail_l", "rail_r")]
+        from sebvs.sim.arm import CONVEYOR_SOLIDS
+        ids = [model.geom(n).id for n in CONVEYOR_SOLIDS]
         for i in ids:
             aligned = np.allclose(model.geom_quat[i], [1, 0, 0, 0])
             if model.geom_bodyid[i] != 0 or not aligned:

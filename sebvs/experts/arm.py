@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from sebvs.sim.arm import fold_yaw
+
 from .detector import ColorDetector, Detection
 
 # The paper's workspace rule: objects beyond this world y get HOME_POSE.
@@ -98,11 +100,6 @@ class ObjectEstimate:
     detection: Detection
     points: int
     extra: dict = field(default_factory=dict)
-
-
-def fold_yaw(yaw: float, symmetry: float = math.pi / 2) -> float:
-    """Yaw folded into [-symmetry/2, symmetry/2) (a cube looks the same a quarter turn on)."""
-    return float((yaw + symmetry / 2) % symmetry - symmetry / 2)
 
 
 def estimate_object(det: Detection, mask: np.ndarray, depth: np.ndarray, cam: CameraPose,

@@ -69,6 +69,7 @@ BELT_HALF_W = 0.16      # half width (x), m
 BELT_Y = (-0.75, 0.95)  # extent along y, m
 BELT_TOP = 0.0
 BELT_ACCEL = 0.5 * 9.81  # m/s^2 at start-up: below g * (side / height), no cube tips
+CONVEYOR_SOLIDS = ("belt", "belt_frame", "rail_l", "rail_r")   # static boxes nothing enters
 SKIN_PERIOD = 0.1       # m, the belt texture's period along y (the skin's wrap-around;
                         # a uniform texture repeats texrepeat times per 2 m: measured)
 
@@ -356,7 +357,7 @@ class ArmScene(Scene):
                       max_energy_jump=20.0,
                       max_kinetic=30.0 + 0.1 * self.config["objects"] * (speed ** 2 + fall ** 2),
                       # a cube whose centre is inside the belt or its frame tunnelled
-                      solid_boxes=("belt", "belt_frame", "rail_l", "rail_r"),
+                      solid_boxes=CONVEYOR_SOLIDS,
                       free_bodies=tuple(f"cube{i}" for i in range(int(self.config["objects"]))),
                       # a cube on the belt climbs only by tipping onto an edge (a fast belt
                       # starting under it does that); more means a chattering contact
@@ -456,7 +457,7 @@ class ArmScene(Scene):
         R = data.xmat[self.cube_body[i]].reshape(3, 3)
         up = int(np.argmax(np.abs(R[2])))
         side = (up + 1) % 3
-        return fold_quarter(math.atan2(R[1, side], R[0, side]))
+        return fold_yaw(math.atan2(R[1, side], R[0, side]))
 
     def project(self, model, data, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pinhole projection into the wrist camera (needs kinematics of this state):
@@ -559,6 +560,7 @@ def _in_gripper(x: float, y: float, z: float, half: float) -> bool:
     return math.hypot(x - hx, y - hy) < 0.1 + half and hz - 0.03 - half < z < hz + TCP + half
 
 
-def fold_quarter(angle: float) -> float:
-    """An angle folded into [-pi/4, pi/4): a cube looks the same a quarter turn on."""
-    return float((angle + math.pi / 4) % (math.pi / 2) - math.pi / 4)
+def fold_yaw(yaw: float, symmetry: float = math.pi / 2) -> float:
+    """Yaw folded into [-symmetry/2, symmetry/2) (a cube looks the same a quarter turn on).
+    The one definition of the cube's yaw label: the scene's truth and the arm expert."""
+    return float((yaw + symmetry / 2) % symmetry - symmetry / 2)
