@@ -188,20 +188,22 @@ class Scene(ABC):
     # sent to the camera as state `light` since it changes the model, not qpos.
     def reset_lights(self, model: mujoco.MjModel, rng: np.random.Generator) -> None:
         """Episode start: full intensity, the flicker's phase drawn from `rng`."""
-        if not hasattr(self, "base_diffuse"):
-            self.base_diffuse = model.light_diffuse.copy()     # (nlight, 3)
         self.flicker_phase = float(rng.uniform(0, 2 * math.pi))
-        self.light_scale = 1.0
-        model.light_diffuse[:] = self.base_diffuse
+        self.set_light_scale(model, 1.0)
 
     def flicker(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """From scripted(): modulate the lights when the config's lighting is "flicker"."""
         if self.config.get("lighting") != "flicker":
             return
-        s = 0.65 + 0.35 * math.sin(2 * math.pi * self.config["flicker_hz"] * data.time
-                                   + self.flicker_phase)
-        self.light_scale = s
-        model.light_diffuse[:] = self.base_diffuse * s
+        self.set_light_scale(model, 0.65 + 0.35 * math.sin(
+            2 * math.pi * self.config["flicker_hz"] * data.time + self.flicker_phase))
+
+    def set_light_scale(self, model: mujoco.MjModel, scale: float) -> None:
+        """Every light's diffuse at `scale` x the compiled one (taken at the first call)."""
+        if not hasattr(self, "base_diffuse"):
+            self.base_diffuse = model.light_diffuse.copy()     # (nlight, 3)
+        self.light_scale = scale
+        model.light_diffuse[:] = self.base_diffuse * scale
 
     # -- state on the wire ----------------------------------------------------------------
     def state(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
@@ -233,6 +235,4 @@ class Scene(ABC):
             data.mocap_pos[:] = state["mocap_pos"]
             data.mocap_quat[:] = state["mocap_quat"]
         if "light" in state:
-            if not hasattr(self, "base_diffuse"):
-                self.base_diffuse = model.light_diffuse.copy()
-            model.light_diffuse[:] = self.base_diffuse * float(state["light"][0])
+            self.set_light_scale(model, float(state["light"][0]))
