@@ -7,7 +7,7 @@ from pathlib import Path
 
 
 def _cmd_eval(args) -> int:
-    from .run import OUTPUT_FILES, EvalPlan, evaluate
+    from .run import TASKS, EvalPlan, evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     plan = EvalPlan(task=args.task, modalities=[m for m in args.modalities.split(",") if m],
                     conditions=[c for c in args.conditions.split(",") if c],
@@ -22,7 +22,7 @@ def _cmd_eval(args) -> int:
         return 2
     results = evaluate(plan)
     print((plan.out / "report.md").read_text())
-    print(f"wrote {plan.out}/: {OUTPUT_FILES[plan.task]}"
+    print(f"wrote {plan.out}/: {TASKS[plan.task].output_files}"
           + (f", videos/ ({len(results.get('videos', []))} files)" if plan.video else ""))
     return 0
 

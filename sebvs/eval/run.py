@@ -56,18 +56,29 @@ ARM_SCENARIOS: dict[str, list[str]] = {"single": ["sim.config.objects=1"],
 
 @dataclass(frozen=True)
 class TaskEval:
-    """What `sebvs eval` needs to know of a task."""
+    """What `sebvs eval` needs to know of a task: its conditions and scenarios, the two
+    topologies, and the per-tick error trace its tracker records (episode key, the plot's
+    file and label)."""
     conditions: dict[str, list[str]]
     scenarios: dict[str, list[str]]
     policy_topology: Path
     expert_topology: Path
+    trace_key: str
+    trace_png: str
+    trace_label: str
+
+    @property
+    def output_files(self) -> str:
+        return f"report.md, results.json, success.png, {self.trace_png}, latency.png"
 
 
 TASKS = {
     "nav": TaskEval(NAV_CONDITIONS, {"single": []}, TOPOLOGIES / "nav_policy.toml",
-                    TOPOLOGIES / "nav_expert.toml"),
+                    TOPOLOGIES / "nav_expert.toml", "trace_error_px", "centroid_error.png",
+                    "centroid error (px); gaps: target out of view"),
     "arm": TaskEval(ARM_CONDITIONS, ARM_SCENARIOS, TOPOLOGIES / "arm_policy.toml",
-                    TOPOLOGIES / "arm_expert.toml"),
+                    TOPOLOGIES / "arm_expert.toml", "trace_error_mm", "pose_error.png",
+                    "position error against the task's pose (mm)"),
 }
 MODALITIES = ("rgb", "event", "rgb+event")
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
@@ -157,7 +168,7 @@ class EvalPlan:
         if not self.video:
             return []
         # one frame per control tick: at the control rate the video plays in sim time
-        hz = tomllib.loads(self.policy_topology.read_text())["actors"]["sim"].get("control_hz")
+        hz = self.policy_sim().get("control_hz")
         for text in self.extra:
             parts, value = parse_override(text)
             if parts == ["sim", "control_hz"]:
@@ -180,8 +191,12 @@ class EvalPlan:
         The expert row is a reference only if the robot, the clock and the camera's
         sampling (which sets the blur exposure) are the same as the policies'.
         """
-        sim = tomllib.loads(self.policy_topology.read_text())["actors"]["sim"]
+        sim = self.policy_sim()
         return [f"sim.{k}={json.dumps(sim[k])}" for k in SHARED_SIM_KEYS if k in sim]
+
+    def policy_sim(self) -> dict:
+        """The policy topology's [actors.sim] table, as written in its file."""
+        return tomllib.loads(self.policy_topology.read_text())["actors"]["sim"]
 
     def overrides(self, run: Run) -> tuple[Path, list[str]]:
         spec = TASKS[self.task]
@@ -266,7 +281,7 @@ def evaluate(plan: EvalPlan) -> dict:
     bar.close()
     results = {"task": plan.task, "clock": plan.clock, "seed": plan.seed,
                "episodes_per_run": plan.episodes, "episodes": []}
-    trace = "trace_error_px" if plan.task == "nav" else "trace_error_mm"
+    trace = TASKS[plan.task].trace_key
     for run in runs:
         for rec in _read_episodes(plan.episode_file(run))[:plan.episodes]:
             results["episodes"].append({"modality": run.modality, "condition": run.condition,
@@ -286,17 +301,9 @@ def write_outputs(results: dict, out: Path) -> None:
     (out / "results.json").write_text(json.dumps(results, indent=1))
     (out / "report.md").write_text(render_report(results) + "\n")
     plot_success(results, out / "success.png")
-    if results["task"] == "nav":
-        plot_traces(results, out / "centroid_error.png", "trace_error_px",
-                    "centroid error (px); gaps: target out of view")
-    else:
-        plot_traces(results, out / "pose_error.png", "trace_error_mm",
-                    "position error against the task's pose (mm)")
+    spec = TASKS[results["task"]]
+    plot_traces(results, out / spec.trace_png, spec.trace_key, spec.trace_label)
     plot_latency(results, out / "latency.png")
-
-
-OUTPUT_FILES = {"nav": "report.md, results.json, success.png, centroid_error.png, latency.png",
-                "arm": "report.md, results.json, success.png, pose_error.png, latency.png"}
 
 
 def plot_traces(results: dict, path: Path, key: str, what: str) -> None:
