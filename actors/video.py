@@ -7,8 +7,8 @@ Inputs  rgb      from the camera: arrays["rgb"] uint8 [H, W, 3] and meta truth, 
         episode  from the sim: meta event start / end; the end's tick is the episode's
                  last control tick
 Writes <directory>/<prefix>__ep<k>.mp4 (sebvs/eval/video.py composes and encodes) for
-episodes k < `episodes`. directory "" writes nothing and costs only the process: the
-nav topologies carry this actor that way, so `sebvs eval --video` only sets params.
+episodes k < `episodes`. directory "" writes nothing. No topology carries this actor:
+`sebvs eval --video` adds it to a run with `--set video.run=...` (sebvs/eval/run.py).
 
 The RGB and the event frame of a tick arrive on separate inputs in either order; ticks
 are written in order once both have arrived. A tick whose event frame is lost (one of a

@@ -128,8 +128,11 @@ def main() -> int:
     results = []
     with tempfile.TemporaryDirectory(prefix="bench-hops-") as tmp:
         tmp = Path(tmp)
+        def pace(nbytes: int) -> float:
+            return args.interval_ms or PACING_MS[nbytes]
+
         for nbytes in SIZES:
-            interval = args.interval_ms or PACING_MS[nbytes]
+            interval = pace(nbytes)
             rt = run_runtime(nbytes, count, interval, tmp) / 1e3
             base = run_baseline(nbytes, count, interval, tmp) / 1e3
             row = {"bytes": nbytes, "count": int(rt.size), "interval_ms": interval,
@@ -138,15 +141,14 @@ def main() -> int:
                    "baseline_p50_us": round(float(np.median(base)), 1),
                    "baseline_p99_us": round(float(np.percentile(base, 99)), 1)}
             row["ratio_p50"] = round(row["runtime_p50_us"] / row["baseline_p50_us"], 3)
-            if interval != (args.interval_ms or PACING_MS[64]):
+            if interval != pace(64):
                 # the runtime alone at the small payloads' pace, for the flatness target:
                 # a longer idle between messages costs a deeper wake-up, not payload work
-                same = run_runtime(nbytes, count, args.interval_ms or PACING_MS[64], tmp) / 1e3
+                same = run_runtime(nbytes, count, pace(64), tmp) / 1e3
                 row["runtime_p50_us_at_base_pace"] = round(float(np.median(same)), 1)
             results.append(row)
             print(json.dumps(row), file=sys.stderr)
-        prof = run_runtime(1_228_800, count, args.interval_ms or PACING_MS[1_228_800], tmp,
-                           profile=True) / 1e3
+        prof = run_runtime(1_228_800, count, pace(1_228_800), tmp, profile=True) / 1e3
     by = {r["bytes"]: r for r in results}
     report = {
         "sizes": results,

@@ -14,16 +14,14 @@ Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
   physics_belt      a box dropped onto a belt moving at 0.5 m/s (static geom with
                     surfacevel, the conveyor's mechanism; our own MJCF), carried for N s:
                     contacts and friction, same axes
-  physics_conveyor  a cube carried by the arm scene's moving belt, same axes; needs
-                    sebvs/sim/arm.py (noted as missing otherwise)
+  physics_conveyor  a cube carried by the arm scene's moving belt, same axes
   events            dvs sampling rate per emulator preset: relative L1 of ON/OFF count
                     frames per control tick vs a reference sampled at 10 kHz, against
                     wall s per simulated s of render + emulation (sebvs/eval/wp_events.py);
-  events_timing     the same runs, p90 event-timestamp error (us) as the error axis;
-                    both need sebvs/dvs (noted as missing otherwise)
+  events_timing     the same runs, p90 event-timestamp error (us) as the error axis
   events_conveyor   the same two axes on the arm scene's moving conveyor (3 seeded cubes,
   events_conveyor_timing  arm at HOME, wrist camera; one line per preset and belt speed,
-                    counts per 100 ms arm control tick); need sebvs/dvs and sebvs/sim/arm.py
+                    counts per 100 ms arm control tick)
   policy            action error on held-out episodes against latency per call, per
                     modality and input size; real checkpoints with --data/--checkpoints,
                     else tiny models trained on a synthetic dataset (marked in every point)
@@ -77,32 +75,14 @@ def settings(quick: bool) -> dict:
             "pol_episodes": 16, "pol_frames": 60, "pol_epochs": 6}
 
 
-def _events_available() -> bool:
-    try:
-        from sebvs.eval import wp_events_run  # noqa: F401  (needs sebvs.dvs)
-    except ImportError:
-        return False
-    return True
-
-
-def _missing(motion: str, have_ev: bool, have_arm: bool) -> str | None:
-    """What an event study of `motion` lacks in this checkout (None: it can run)."""
-    if not have_ev:
-        return "the event emulator (sebvs/dvs)"
-    if motion == "conveyor" and not have_arm:
-        return "sebvs/sim/arm.py (conveyor)"
-    return None
-
-
-def _event_study(motion: str, missing: str | None, cfg: dict, seed: int,
+def _event_study(motion: str, cfg: dict, seed: int,
                  tick) -> tuple[list[dict], list[dict], str]:
-    """wp_events_run.study for one motion, or no points and a note saying why not."""
-    if missing:
-        return [], [], f"not run: {missing} is not in this checkout"
+    """wp_events_run.study for one motion; a conveyor failure leaves no points and a note
+    (the other studies' figures still come out), a nav failure raises."""
     from sebvs.eval import wp_events_run
     try:
         return wp_events_run.study(cfg, seed, progress=tick, motion=motion)
-    except Exception as exc:   # noqa: BLE001  (the arm scene's API is not ours)
+    except Exception as exc:   # noqa: BLE001
         if motion == "nav":
             raise
         return [], [], f"failed on the arm scene: {type(exc).__name__}: {exc}"
@@ -136,12 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     # Count runs first, so one bar covers the whole job.
     nav = wp_physics.nav_case(a.seed, cfg["nav_seconds"])
     n_phys = len(wp_physics.INTEGRATORS) * len(wp_physics.TIMESTEPS)
-    have_arm, have_ev = wp_physics.arm_available(), _events_available()
-    plan = {"physics_nav": n_phys, "physics_belt": n_phys, "physics_conveyor": n_phys if have_arm else 0,
+    plan = {"physics_nav": n_phys, "physics_belt": n_phys, "physics_conveyor": n_phys,
             "policy": 0}
-    ev_missing = {m: _missing(m, have_ev, have_arm) for m in EVENT_STUDIES}
     for motion, names in EVENT_STUDIES.items():
-        if set(names) & set(only) and not ev_missing[motion]:
+        if set(names) & set(only):
             from sebvs.eval import wp_events_run
             plan[names[0]] = wp_events_run.n_runs(cfg, motion)
     if "policy" in only:
@@ -171,23 +149,20 @@ def main(argv: list[str] | None = None) -> int:
                         "note": f"{belt.note}; {cfg['belt_seconds']:g} s simulated; reference "
                                 f"{ref}; stand-in for the arm conveyor (same surfacevel belt)"})
     if "physics_conveyor" in only:
-        if have_arm:
-            bar.set_postfix_str("physics_conveyor")
-            try:
-                case = wp_physics.conveyor_case(a.seed)
-                pts = wp_physics.physics_study(case, cfg["conveyor_seconds"],
-                                               repeats=cfg["repeats"], progress=tick)
-                note = f"{case.note}; {cfg['conveyor_seconds']:g} s simulated; reference {ref}"
-            except Exception as exc:   # noqa: BLE001  (the arm scene's API is not ours)
-                pts, note = [], f"failed on the arm scene: {type(exc).__name__}: {exc}"
-        else:
-            pts, note = [], "not run: sebvs/sim/arm.py (conveyor) is not in this checkout"
+        bar.set_postfix_str("physics_conveyor")
+        try:
+            case = wp_physics.conveyor_case(a.seed)
+            pts = wp_physics.physics_study(case, cfg["conveyor_seconds"],
+                                           repeats=cfg["repeats"], progress=tick)
+            note = f"{case.note}; {cfg['conveyor_seconds']:g} s simulated; reference {ref}"
+        except Exception as exc:   # noqa: BLE001  (the other studies' figures still come out)
+            pts, note = [], f"failed on the arm scene: {type(exc).__name__}: {exc}"
         studies.append({"name": "physics_conveyor", "points": pts, **phys_labels,
                         "note": note})
     for motion, (l1_name, ts_name) in EVENT_STUDIES.items():
         if l1_name in only or ts_name in only:
             bar.set_postfix_str(l1_name)
-            ev, ev_timing, note = _event_study(motion, ev_missing[motion], cfg, a.seed, tick)
+            ev, ev_timing, note = _event_study(motion, cfg, a.seed, tick)
             labels = {"seconds_label": "wall seconds per simulated second (render + emulator)"}
             if l1_name in only:
                 studies.append({"name": l1_name, "points": ev, "note": note, **labels,

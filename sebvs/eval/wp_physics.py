@@ -29,7 +29,6 @@ noise of the reference, not accuracy of the method).
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 import statistics
 import time
@@ -143,10 +142,6 @@ def conveyor_case(seed: int = 0) -> Case:
 
     return Case("conveyor", build, cube, drive,
                 note=f"arm scene, body {cube!r} carried by the conveyor, arm idle, seed {seed}")
-
-
-def arm_available() -> bool:
-    return importlib.util.find_spec("sebvs.sim.arm") is not None
 
 
 def run_case(case: Case, integrator: str, dt: float, seconds: float) -> dict:
