@@ -89,6 +89,26 @@ def test_large_frames_travel_through_shared_memory(tmp_path):
     assert_clean(sup)
 
 
+def test_cpus_pin_every_thread_of_the_actor(tmp_path):
+    cpu = max(os.sched_getaffinity(0))
+    sup = start(tmp_path, SMALL + [f"sink.cpus=[{cpu}]"])
+    try:
+        time.sleep(0.3)
+        st = ctl(sup, "sink", cmd="stats")["result"]["inputs"]["frames"]
+        assert st["handled"] > 5
+        pid = sup.procs["sink"].popen.pid
+        threads = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        assert len(threads) >= 2          # the main thread and ZeroMQ's I/O thread at least
+        assert {t: os.sched_getaffinity(t) for t in threads} == {t: {cpu} for t in threads}
+        relay = sup.procs["relay"].popen.pid
+        assert os.sched_getaffinity(relay) == os.sched_getaffinity(0)   # unpinned: inherited
+        info = json.loads((sup.rundir / "run.json").read_text())
+        assert info["actors"]["sink"]["cpus"] == [cpu]
+    finally:
+        sup.stop()
+    assert_clean(sup)
+
+
 def test_probe_sees_stamps_and_arrays(tmp_path):
     topo = tmp_path / "probe.toml"
     topo.write_text(f"""

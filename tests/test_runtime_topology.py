@@ -1,3 +1,4 @@
+import os
 from pathlib import Path
 
 import pytest
@@ -51,12 +52,25 @@ def test_synthetic_loads():
                   'inputs = { frames = { from = "source/frames", queue = 0 } }'), "'queue'"),
     (BASE.replace('inputs = { frames = "source/frames" }', 'inputs = { rgb = "source/frames" }'),
      "has no input 'rgb'"),
+    (BASE + "cpus = 0\n", "[actors.sink] key 'cpus': expected a non-empty list"),
+    (BASE + "cpus = []\n", "key 'cpus': expected a non-empty list"),
+    (BASE + "cpus = [0, 0]\n", "key 'cpus': expected a non-empty list of distinct"),
+    (BASE + "cpus = [-1]\n", "key 'cpus'"),
+    (BASE + "cpus = [100000]\n", "key 'cpus': CPU 100000 not available here"),
 ])
 def test_validation_errors_name_file_table_and_key(tmp_path, text, needle):
     with pytest.raises(TopologyError) as err:
         load(tmp_path, text)
     assert needle in str(err.value)
     assert "topo.toml" in str(err.value)
+
+
+def test_cpus_are_read_per_actor(tmp_path):
+    cpu = min(os.sched_getaffinity(0))
+    topo = load(tmp_path, BASE, [f"sink.cpus=[{cpu}]"])
+    assert topo.actors["sink"].cpus == (cpu,)
+    assert topo.actors["source"].cpus == ()
+    assert "cpus" not in topo.actors["sink"].params   # runtime key, not an actor parameter
 
 
 def test_overrides(tmp_path):

@@ -125,7 +125,7 @@ class Supervisor:
         specs = {}
         for a in active.values():
             specs[a.name] = {
-                "name": a.name, "run": a.run, "params": a.params,
+                "name": a.name, "run": a.run, "params": a.params, "cpus": list(a.cpus),
                 "seed": topo.actor_seed(a.name), "clock": topo.clock, "run_id": self.run_id,
                 "consumed": [o for o in a.cls.outputs if topo.consumers(a.name, o)],
                 "inputs": {i.name: {"endpoint": outputs[(i.producer, i.output)]["endpoint"],
@@ -170,6 +170,7 @@ class Supervisor:
             "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
             "actors": {n: {"run": s["run"], "control": s["control"],
                            "telemetry": s["telemetry"], "consumed": s["consumed"],
+                           "cpus": s["cpus"],
                            "outputs": {o: v["endpoint"] for o, v in s["outputs"].items()},
                            "inputs": {i: v["topic"] for i, v in s["inputs"].items()},
                            "log": str(self.rundir / "logs" / f"{n}.log")}

@@ -7,6 +7,7 @@ sink and stays).
 from __future__ import annotations
 
 import importlib
+import os
 import tomllib
 import zlib
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ TOPOLOGY_KEYS = {"name": str, "clock": str, "seed": int, "restart": str,
 CLOCKS = ("lockstep", "realtime")
 RESTART_POLICIES = ("stop", "restart")
 TRANSPORTS = ("ipc", "tcp")
-ACTOR_RESERVED = {"run", "inputs", "keep"}
+ACTOR_RESERVED = {"run", "inputs", "keep", "cpus"}
 DEFAULT_QUEUE = 32
 
 
@@ -50,6 +51,7 @@ class ActorSpec:
     params: dict[str, Any]
     keep: bool = False
     pruned: bool = False
+    cpus: tuple[int, ...] = ()      # pin the process (all its threads) to these CPUs; () = OS's choice
 
 
 @dataclass
@@ -150,6 +152,24 @@ def _parse_input(spec: Any, where: str, default_queue: int) -> tuple[str, int | 
     raise TopologyError(f"{where}: expected \"actor/output\" or a table, got {spec!r}")
 
 
+def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
+    """The `cpus` key: distinct CPU numbers this process may run on (checked here, before any
+    process starts, so a topology written for a bigger machine fails with its name)."""
+    if not (isinstance(value, list) and value
+            and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value)
+            and len(set(value)) == len(value)):
+        raise TopologyError(f"{where} key 'cpus': expected a non-empty list of distinct CPU "
+                            f"numbers such as [0] or [2, 3], got {value!r}")
+    if not hasattr(os, "sched_setaffinity"):
+        raise TopologyError(f"{where} key 'cpus': CPU pinning is not supported on this platform")
+    available = os.sched_getaffinity(0)
+    missing = sorted(set(value) - available)
+    if missing:
+        raise TopologyError(f"{where} key 'cpus': CPU {', '.join(map(str, missing))} not "
+                            f"available here (available: {', '.join(map(str, sorted(available)))})")
+    return tuple(value)
+
+
 def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topology:
     path = Path(path)
     try:
@@ -221,7 +241,8 @@ def build_topology(doc: dict, path: Path) -> Topology:
         keep = table.get("keep", False)
         if not isinstance(keep, bool):
             raise TopologyError(f"{where} key 'keep': expected true or false")
-        topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep)
+        cpus = _parse_cpus(table["cpus"], where) if "cpus" in table else ()
+        topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep, cpus=cpus)
     for a in topo.actors.values():
         for inp in a.inputs.values():
             where = f"{path}: [actors.{a.name}] key 'inputs.{inp.name}'"

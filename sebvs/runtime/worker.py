@@ -29,6 +29,24 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
+def pin_process(cpus: list[int]) -> None:
+    """Pin every thread of this process to ``cpus``.
+
+    Threads started at import (numpy's BLAS pool) are pinned one by one; the ones started
+    later (ZeroMQ's I/O thread when the Node makes its context, torch's pool) inherit the
+    main thread's affinity, which is why this runs before the Node exists.
+    """
+    try:
+        threads = [int(t) for t in os.listdir("/proc/self/task")]
+    except FileNotFoundError:
+        threads = [0]
+    for tid in threads:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except ProcessLookupError:
+            pass  # a thread that ended meanwhile
+
+
 def load_class(path: str):
     module_name, _, cls_name = path.partition(":")
     module = importlib.import_module(module_name)
@@ -44,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
                         format=f"%(asctime)s {spec['name']} %(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)
     from .node import Node  # after logging is configured
+    if spec.get("cpus"):
+        pin_process(spec["cpus"])
 
     cls = load_class(spec["run"])
     params = build_params(cls.Params, spec["params"], where=f"actor {spec['name']!r}")
