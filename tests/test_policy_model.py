@@ -43,6 +43,44 @@ def test_token_count_and_shape_errors():
         ERP("nav", 5, 100)
 
 
+def test_conv_stem_gives_the_patch_grid_of_tokens():
+    x = torch.rand(2, 5, 160, 160)
+    patch, conv = ERP("arm", 5, 160).eval(), ERP("arm", 5, 160, stem="conv").eval()
+    assert patch.embed(x).shape == conv.embed(x).shape == (2, 100, 64)
+    assert conv(x).shape == (2, 6)
+    # 3x3 stride-2 convolutions 5->16->32->64 (BatchNorm between) and a 64->64 projection
+    assert count_parameters(conv.embed) == (5 * 16 * 9 + 2 * 16) + (16 * 32 * 9 + 2 * 32) + \
+        (32 * 64 * 9 + 2 * 64) + (64 * 64 * 9 + 64)
+    # a conv token sees beyond its patch (31 px receptive field), a patch token does not
+    x2 = x.clone()
+    x2[:, :, 15, 15] += 1.0                          # last pixel of patch (0, 0)
+    conv_changed = (conv.embed(x2) - conv.embed(x)).abs().sum(dim=(0, 2)) > 0
+    patch_changed = (patch.embed(x2) - patch.embed(x)).abs().sum(dim=(0, 2)) > 0
+    assert conv_changed[0] and conv_changed[11]      # patch (0, 0) and its neighbour (1, 1)
+    assert patch_changed[0] and not patch_changed[11]
+    with pytest.raises(ValueError, match="unknown stem 'deep'"):
+        ERP("arm", 5, 160, stem="deep")
+    with pytest.raises(ValueError, match="power-of-two patch"):
+        ERP("arm", 5, 144, patch=12, stem="conv")
+
+
+def test_conv_stem_checkpoint_round_trip_and_old_configs(tmp_path):
+    norm = Normalisation(size=32)
+    torch.manual_seed(0)
+    m = ERP("arm", 3, 32, stem="conv").eval()
+    pt = save_checkpoint(m, model_config("arm", "rgb", norm, "conv"), tmp_path)
+    model, cfg, _ = load_checkpoint(pt)
+    assert cfg["stem"] == "conv" and model.stem == "conv"
+    x = torch.rand(2, 3, 32, 32)
+    assert torch.equal(model(x), m(x))
+    # a config from before the stem existed describes the patch stem
+    old = json.loads(pt.with_suffix(".json").read_text())
+    del old["stem"]
+    pt.with_suffix(".json").write_text(json.dumps(old))
+    with pytest.raises(ValueError, match="stem patch"):
+        load_checkpoint(pt)
+
+
 def test_sinusoidal_positions_are_distinct_and_bounded():
     pos = sinusoidal_positions_2d(10, 10, 64)
     assert pos.shape == (100, 64)

@@ -190,19 +190,26 @@ def test_arm_pose_is_standardised_from_the_training_targets(tmp_path):
     assert all(s >= f for s, f in zip(stats["scale"], POSE_SCALE_FLOOR))
     model, cfg, _ = load_checkpoint(tmp_path / "ckpt" / "arm-rgb.pt")
     np.testing.assert_allclose(model.head.mean.numpy(), stats["mean"], rtol=1e-6)
-    # forward = mean + scale * mlp for x..pitch; loss_space inverts it exactly, and gives
-    # the yaw pair back as the mlp's unit vector
+    # forward = mean + scale * mlp for x..pitch; the prediction's loss space measures the
+    # same offset from the mean in centimetres (0.05 rad for roll and pitch) and keeps the
+    # mlp's yaw pair as it is (not normalised), and it agrees with encode(forward(x))
     m = ERP("arm", 3, 32).eval()
     m.head.set_target_stats([0.4, 0.1, 0.2, 3.1, 0.0, 0.0], [0.05, 0.2, 0.01, 0.05, 0.05, 0.3])
     x = torch.rand(2, 3, 32, 32)
     with torch.no_grad():
         raw = m.head.mlp(m.encoder(m.tokens(m.embed(x)))[:, 0])
+        pred = m.predict_loss_space(x)
+        torch.testing.assert_close(pred[:, :5], raw[:, :5] * m.head.scale[:5] /
+                                   torch.tensor([0.01, 0.01, 0.01, 0.05, 0.05]))
+        torch.testing.assert_close(pred[:, 5:], raw[:, 5:])
         enc = m.loss_space(m(x))
-        torch.testing.assert_close(enc[:, :5], raw[:, :5])
+        torch.testing.assert_close(enc[:, :5], pred[:, :5], atol=1e-4, rtol=1e-5)
         torch.testing.assert_close(enc[:, 5:], raw[:, 5:] / raw[:, 5:].norm(dim=1, keepdim=True))
     nav = ERP("nav", 3, 32)
     y = torch.rand(4, 2)
     assert torch.equal(nav.loss_space(y), y)
+    nav.eval()
+    assert torch.equal(nav.predict_loss_space(x), nav(x))
 
 
 def test_arm_yaw_is_encoded_continuously_across_the_cube_fold():
@@ -214,6 +221,11 @@ def test_arm_yaw_is_encoded_continuously_across_the_cube_fold():
                          [0.4, 0.1, 0.2, 3.14, 0.0, math.radians(-44.9)]])
     enc = m.loss_space(near)
     assert (enc[0] - enc[1]).abs().max() < 0.02
-    # decode(encode(pose)) is the pose, yaw in (-45, 45]
-    poses = torch.tensor([[0.4, 0.1, 0.2, 3.14, 0.01, math.radians(a)] for a in (-44, -10, 0, 30)])
-    torch.testing.assert_close(m.head.decode(m.loss_space(poses)), poses, atol=1e-5, rtol=0)
+    # positions in centimetres from the mean; the yaw comes back from its pair
+    m.head.set_target_stats([0.4, 0.1, 0.2, 3.14, 0.0, 0.0], [0.05, 0.2, 0.01, 0.05, 0.05, 0.3])
+    poses = torch.tensor([[0.43, 0.05, 0.2, 3.14, 0.01, math.radians(a)] for a in (-44, -10, 0, 30)])
+    enc = m.loss_space(poses)
+    torch.testing.assert_close(enc[:, :3], torch.tensor([[3.0, -5.0, 0.0]] * 4), atol=1e-4, rtol=0)
+    assert torch.allclose(enc[:, 4], torch.full((4,), 0.2))         # 0.01 rad of pitch = 0.2
+    torch.testing.assert_close(torch.atan2(enc[:, 6], enc[:, 5]) / 4, poses[:, 5],
+                               atol=1e-5, rtol=0)

@@ -30,10 +30,10 @@ def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
     return pt
 
 
-def model_config(task: str, modality: str, norm: Normalisation) -> dict:
+def model_config(task: str, modality: str, norm: Normalisation, stem: str = "patch") -> dict:
     """The part of a config that decides the architecture and its input."""
     order = {"rgb": ["r", "g", "b"], "events": ["on", "off"]}
-    return {"task": task, "modality": modality, "size": norm.size,
+    return {"task": task, "modality": modality, "size": norm.size, "stem": stem,
             "channels": channels(modality),
             "channel_order": [c for s in MODALITY_INPUTS[modality] for c in order[s]],
             "normalisation": norm.to_dict()}
@@ -70,13 +70,15 @@ def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
     if norm.size != cfg["size"]:
         raise ValueError(f"checkpoint {pt_path}: normalisation size {norm.size} != size "
                          f"{cfg['size']}")
-    model = ERP(cfg["task"], cfg["channels"], cfg["size"])
+    # configs written before the conv stem existed have no "stem": theirs is the patch one
+    model = ERP(cfg["task"], cfg["channels"], cfg["size"], stem=cfg.get("stem", "patch"))
     state = torch.load(pt_path, map_location="cpu", weights_only=True)
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:
         raise ValueError(f"checkpoint {pt_path}: weights do not match the config "
-                         f"(task {cfg['task']}, modality {cfg['modality']}, size {cfg['size']}):"
+                         f"(task {cfg['task']}, modality {cfg['modality']}, size {cfg['size']}, "
+                         f"stem {cfg.get('stem', 'patch')}):"
                          f" {str(exc).splitlines()[0]} ...") from None
     model.eval()
     return model, cfg, norm

@@ -32,7 +32,7 @@ def _cmd_train(args) -> int:
         train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
               epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
               num_workers=args.workers, threads=args.threads, val_fraction=args.val_fraction,
-              patience=args.patience, lr=args.lr, device=args.device,
+              patience=args.patience, lr=args.lr, device=args.device, stem=args.stem,
               norm=Normalisation(size=args.size, event_clip=args.event_clip))
     except (FileNotFoundError, ValueError) as exc:   # bad data or settings: say so, no trace
         print(f"sebvs train: {exc}", file=sys.stderr)
@@ -55,6 +55,10 @@ def register(subparsers) -> None:
     t.add_argument("--size", type=_size, default=160,
                    help="input side in px, or a preset: cpu=160 (100 tokens), "
                         "paper=640 (1600 tokens, for GPUs) (default 160)")
+    t.add_argument("--stem", choices=["patch", "conv"], default="patch",
+                   help="token embedding: patch, the paper's linear 16x16 patchify, or conv, "
+                        "four 3x3 stride-2 convolutions giving the same tokens (docs/policy.md; "
+                        "default patch)")
     t.add_argument("--epochs", type=int, default=None, help="default 10")
     t.add_argument("--batch", type=int, default=None, help="default 32")
     t.add_argument("--seed", type=int, default=0)

@@ -2,13 +2,14 @@
 
     x [B, C, S, S]  (C = 3 rgb | 2 event | 5 rgb+event, already normalised by inputs.py)
       -> PatchEmbedding     tokens [B, N, 64]    N = (S/16)^2: 100 at 160 px, 1600 at 640 px
+         (or ConvStem, same tokens, when built with stem="conv")
       -> prepend class token, add fixed 2-D sinusoidal positions       [B, 1+N, 64]
       -> one pre-norm encoder layer (4-head self-attention, 256-unit MLP, dropout 0.1)
       -> task head on the class token: nav [v, w] in [-1, 1], arm 6-DoF pose
 
 The three variants differ only in the patch embedding's input channels, so a variant is
 chosen by ``in_channels`` alone. Every other size is a constructor argument with the
-paper's value as default.
+paper's value as default; ``stem="conv"`` is our one departure, off by default.
 """
 from __future__ import annotations
 
@@ -57,6 +58,39 @@ class PatchEmbedding(nn.Module):
         return self.proj(x).flatten(2).transpose(1, 2)
 
 
+class ConvStem(nn.Module):
+    """Early convolutions in place of the linear patchify: [B, C, S, S] -> [B, (S/p)^2, dim].
+
+    log2(p) 3x3 stride-2 convolutions (BatchNorm + ReLU between them, widths doubling up to
+    ``dim``), the last one projecting to ``dim``: the same grid of tokens as
+    PatchEmbedding, each seeing its patch and a margin around it through a nonlinear
+    filter bank. Xiao et al. (2021, "Early convolutions help transformers see better")
+    found this stem steadies ViT training; we use it where the paper's one-layer model
+    underfits (the arm's pose: its yaw and sub-patch position are not linear in a patch's
+    pixels; docs/policy.md).
+    """
+
+    def __init__(self, in_channels: int, dim: int = 64, patch: int = 16):
+        super().__init__()
+        n = patch.bit_length() - 1
+        if patch < 4 or 1 << n != patch:
+            raise ValueError(f"the conv stem needs a power-of-two patch >= 4, got {patch}")
+        layers, c = [], in_channels
+        for i in range(n - 1):
+            w = max(8, dim >> (n - 2 - i))
+            layers += [nn.Conv2d(c, w, 3, stride=2, padding=1, bias=False),
+                       nn.BatchNorm2d(w), nn.ReLU(inplace=True)]
+            c = w
+        layers.append(nn.Conv2d(c, dim, 3, stride=2, padding=1))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x).flatten(2).transpose(1, 2)
+
+
+STEMS = {"patch": PatchEmbedding, "conv": ConvStem}
+
+
 class TokenSequence(nn.Module):
     """Prepends the learnable class token and adds fixed positions: [B, N, D] -> [B, 1+N, D].
 
@@ -92,20 +126,29 @@ class NavHead(nn.Module):
 class ArmHead(nn.Module):
     """PolicyHeadArm: class token [B, D] -> pose [x, y, z, roll, pitch, yaw] [B, 6].
 
-    Deeper than the nav head (two hidden layers) and unbounded. The MLP's 7 outputs live in
-    the loss space (`encode`): x, y, z, roll and pitch standardised, pose = mean + scale * u,
-    so that a centimetre and a few degrees weigh alike in the loss (in raw units a 1 cm error
-    is 0.01, deep in Smooth L1's quadratic zone, and the constant roll of pi would dominate);
-    and the yaw as (cos 4 yaw, sin 4 yaw). A cube looks the same a quarter turn on, so its
-    yaw label is folded into [-45, 45) degrees and jumps from one end to the other where the
-    cube's faces pass 45 degrees: a regressed angle learns the mean there, the 4-fold unit
-    vector is continuous. `mean` and `scale` [6] are buffers set from the training targets
-    (`set_target_stats`; the yaw's entries are unused): they travel in the state_dict, so
-    the model always outputs metres and radians, yaw in (-pi/4, pi/4].
+    Deeper than the nav head (two hidden layers) and unbounded. Two spaces besides the pose:
+
+    - the MLP's 7 outputs u: x, y, z, roll and pitch standardised, pose = mean + scale * u,
+      so the network works at unit scale whatever the spread of each coordinate; and the
+      yaw as (cos 4 yaw, sin 4 yaw). A cube looks the same a quarter turn on, so its yaw
+      label is folded into [-45, 45) degrees and jumps from one end to the other where the
+      cube's faces pass 45 degrees: a regressed angle learns the mean there, the 4-fold
+      unit vector is continuous.
+    - the loss space (`encode`), where training compares prediction and target: x, y, z in
+      centimetres and roll, pitch in units of 0.05 rad (LOSS_UNIT) from the mean, the yaw
+      pair as above. A grasp needs about a centimetre; in standard deviations a centimetre
+      along the belt (targets spread 20 cm) is 0.05, deep in Smooth L1's quadratic zone
+      where its gradient fades, so a model trained there settles 2-4 cm off and spends its
+      loss on the yaw (docs/policy.md). In raw metres it would be 0.01, worse still.
+
+    `mean` and `scale` [6] are buffers set from the training targets (`set_target_stats`;
+    the yaw's entries are unused): they travel in the state_dict, so the model always
+    outputs metres and radians, yaw in (-pi/4, pi/4].
     """
 
     YAW_FOLD = 4            # the cube's rotational symmetry about the vertical
-    LOSS_DIMS = 7           # 5 standardised + (cos, sin) of the folded yaw
+    LOSS_DIMS = 7           # 5 linear + (cos, sin) of the folded yaw
+    LOSS_UNIT = (0.01, 0.01, 0.01, 0.05, 0.05)   # m, m, m, rad, rad per unit of loss space
 
     def __init__(self, dim: int = 64, hidden: int = 128):
         super().__init__()
@@ -114,6 +157,7 @@ class ArmHead(nn.Module):
                                  nn.Linear(hidden // 2, self.LOSS_DIMS))
         self.register_buffer("mean", torch.zeros(TASK_OUTPUTS["arm"]))
         self.register_buffer("scale", torch.ones(TASK_OUTPUTS["arm"]))
+        self.register_buffer("loss_unit", torch.tensor(self.LOSS_UNIT), persistent=False)
 
     def set_target_stats(self, mean, scale) -> None:
         """Pose standardisation from the training targets: mean [6], scale [6] (> 0)."""
@@ -122,18 +166,26 @@ class ArmHead(nn.Module):
 
     def encode(self, pose: torch.Tensor) -> torch.Tensor:
         """[B, 6] pose in metres/radians -> [B, 7] loss space (where the loss is taken)."""
-        lin = (pose[:, :5] - self.mean[:5]) / self.scale[:5]
+        lin = (pose[:, :5] - self.mean[:5]) / self.loss_unit
         k = self.YAW_FOLD * pose[:, 5:6]
         return torch.cat([lin, torch.cos(k), torch.sin(k)], dim=1)
 
     def decode(self, u: torch.Tensor) -> torch.Tensor:
-        """[B, 7] loss space -> [B, 6] pose; the (cos, sin) pair need not be unit length."""
+        """[B, 7] MLP output -> [B, 6] pose; the (cos, sin) pair need not be unit length."""
         lin = self.mean[:5] + self.scale[:5] * u[:, :5]
         yaw = torch.atan2(u[:, 6:7], u[:, 5:6]) / self.YAW_FOLD
         return torch.cat([lin, yaw], dim=1)
 
     def forward(self, cls: torch.Tensor) -> torch.Tensor:
         return self.decode(self.mlp(cls))
+
+    def predict_loss_space(self, cls: torch.Tensor) -> torch.Tensor:
+        """Class token [B, D] -> the prediction in the loss space [B, 7], straight from the
+        MLP: encode(forward(cls)) would normalise the yaw pair, whose gradient shrinks as
+        1/|pair| and turns only the pair's direction; compared as the MLP gives it, the pair
+        is a plain regression target."""
+        u = self.mlp(cls)
+        return torch.cat([u[:, :5] * self.scale[:5] / self.loss_unit, u[:, 5:]], dim=1)
 
 
 class ERP(nn.Module):
@@ -144,17 +196,21 @@ class ERP(nn.Module):
         in_channels: 3 (rgb), 2 (event) or 5 (rgb+event); rgb channels come first.
         size: input side in pixels, a multiple of ``patch`` (160 -> 100 tokens, 640 -> 1600).
         dim, heads, mlp, dropout, patch: the paper's 64, 4, 256, 0.1, 16.
+        stem: "patch" (the paper's linear patch embedding) or "conv" (ConvStem).
     """
 
     def __init__(self, task: str, in_channels: int, size: int = 160, *, dim: int = 64,
-                 heads: int = 4, mlp: int = 256, dropout: float = 0.1, patch: int = 16):
+                 heads: int = 4, mlp: int = 256, dropout: float = 0.1, patch: int = 16,
+                 stem: str = "patch"):
         super().__init__()
         if task not in TASK_OUTPUTS:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
+        if stem not in STEMS:
+            raise ValueError(f"unknown stem {stem!r} ({', '.join(STEMS)})")
         if size % patch:
             raise ValueError(f"size {size} is not a multiple of the patch size {patch}")
-        self.task, self.in_channels, self.size = task, in_channels, size
-        self.embed = PatchEmbedding(in_channels, dim, patch)
+        self.task, self.in_channels, self.size, self.stem = task, in_channels, size, stem
+        self.embed = STEMS[stem](in_channels, dim, patch)
         self.tokens = TokenSequence(size // patch, dim)
         # Pre-norm, as in ViT and RVT, whose formulation section 3.4 says it follows (its
         # "layer normalization ... after each sub-layer" could also read as post-norm).
@@ -167,18 +223,27 @@ class ERP(nn.Module):
                                                   batch_first=True, norm_first=True)
         self.head = NavHead(dim) if task == "nav" else ArmHead(dim)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]."""
+    def _class_token(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> the encoded class token [B, dim]."""
         if x.shape[1:] != (self.in_channels, self.size, self.size):
             raise ValueError(f"expected input [B, {self.in_channels}, {self.size}, {self.size}], "
                              f"got {list(x.shape)}")
-        h = self.encoder(self.tokens(self.embed(x)))
-        return self.head(h[:, 0])
+        return self.encoder(self.tokens(self.embed(x)))[:, 0]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]."""
+        return self.head(self._class_token(x))
+
+    def predict_loss_space(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> the prediction where training compares it with loss_space(y):
+        the arm head's [B, 7] (ArmHead.predict_loss_space), the nav action as it is."""
+        cls = self._class_token(x)
+        return self.head.predict_loss_space(cls) if isinstance(self.head, ArmHead) \
+            else self.head(cls)
 
     def loss_space(self, y: torch.Tensor) -> torch.Tensor:
-        """Targets or predictions in the space the training loss compares them in: the arm
-        head's encoding [B, 7] (a prediction's yaw pair comes back unit length), the nav
-        action as it is ([-1, 1] already)."""
+        """Targets [B, 6 | 2] in the space the training loss is taken: the arm head's
+        encoding [B, 7], the nav action as it is ([-1, 1] already)."""
         return self.head.encode(y) if isinstance(self.head, ArmHead) else y
 
 

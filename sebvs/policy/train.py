@@ -42,6 +42,7 @@ class TrainSettings:
     num_workers: int = 0
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
     device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
+    stem: str = "patch"           # "patch" (the paper's) or "conv" (model.ConvStem)
     norm: Normalisation = field(default_factory=Normalisation)
 
 
@@ -85,7 +86,7 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
     with torch.set_grad_enabled(training):
         for x, y in bar:
             x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
-            loss = criterion(model.loss_space(model(x)), model.loss_space(y))
+            loss = criterion(model.predict_loss_space(x), model.loss_space(y))
             if training:
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
@@ -124,7 +125,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     torch.use_deterministic_algorithms(True, warn_only=s.device != "cpu")
     try:
         _seed_everything(s.seed)
-        model = ERP(s.task, channels(modality), s.norm.size)
+        model = ERP(s.task, channels(modality), s.norm.size, stem=s.stem)
         target_stats = None
         if s.task == "arm":
             target_stats = pose_stats(train_set.targets())
@@ -180,7 +181,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         train_set.close()
         val_set.close()
 
-    config = {**model_config(s.task, modality, s.norm),
+    config = {**model_config(s.task, modality, s.norm, s.stem),
               "parameters": count_parameters(model),
               **({"target_stats": target_stats} if target_stats else {}),
               "dataset": {"path": str(data), "hash": dataset_hash(data, episodes),
