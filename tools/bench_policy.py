@@ -8,6 +8,7 @@ JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
 Inference is what the policy actor does per tick: model.eval(), torch.inference_mode(),
 batch 1, the nav head (the arm head adds two small linear layers). Input preparation
 (inputs.py: resize + scale from a 640x640 frame) is timed separately as `prep_ms`.
+Both token embeddings are timed (--stems): the paper's patch projection and ConvStem.
 Training is one Adam step (forward, MSE, backward, update) on random batches.
 """
 from __future__ import annotations
@@ -43,11 +44,11 @@ def _timed(fn, budget_s: float, min_iter: int, max_iter: int, warm: int = 2) -> 
 
 
 def bench_inference(modality: str, size: int, threads: int, budget_s: float,
-                    min_iter: int = 10) -> dict:
+                    min_iter: int = 10, stem: str = "patch") -> dict:
     torch.set_num_threads(threads)
     cv2.setNumThreads(threads)     # as the policy actor does
     torch.manual_seed(0)
-    model = ERP("nav", channels(modality), size).eval()
+    model = ERP("nav", channels(modality), size, stem=stem).eval()
     x = torch.rand(1, channels(modality), size, size)
 
     def step():
@@ -60,7 +61,8 @@ def bench_inference(modality: str, size: int, threads: int, budget_s: float,
     ev = rng.integers(0, 4, (2, 640, 640), dtype=np.uint8)
     norm = Normalisation(size=size)
     prep = _timed(lambda: model_input(modality, norm, rgb=rgb, events=ev), budget_s / 4, 5, 500)
-    return {"modality": modality, "size": size, "threads": threads, "tokens": (size // 16) ** 2,
+    return {"modality": modality, "size": size, "threads": threads, "stem": stem,
+            "tokens": (size // 16) ** 2,
             "parameters": count_parameters(model), "p50_ms": round(float(np.median(ms)), 4),
             "p90_ms": round(float(np.percentile(ms, 90)), 4),
             "p99_ms": round(float(np.percentile(ms, 99)), 4), "n": int(ms.size),
@@ -93,7 +95,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--sizes", default="160,320,640")
     ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--stems", default="patch,conv",
+                    help="token embeddings to time: patch (the paper's), conv (ConvStem)")
     args = ap.parse_args(argv)
+    stems = args.stems.split(",")
     sizes = [int(s) for s in args.sizes.split(",")]
     threads = [int(t) for t in args.threads.split(",")]
     budget = 0.35 if args.quick else 2.0
@@ -102,11 +107,11 @@ def main(argv=None) -> int:
     inference = []
     for size in sizes:
         for t in threads:
-            for m in MODALITIES:
+            for m, stem in ((m, st) for st in stems for m in MODALITIES):
                 r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5),
-                                    min_iter=5 if args.quick and size > 320 else 10)
+                                    min_iter=5 if args.quick and size > 320 else 10, stem=stem)
                 inference.append(r)
-                print(f"inference {m:>9} {size:>4}px {t} thr: p50 {r['p50_ms']:.3f} ms  "
+                print(f"inference {stem:>5} {m:>9} {size:>4}px {t} thr: p50 {r['p50_ms']:.3f} ms  "
                       f"p99 {r['p99_ms']:.3f} ms  (prep {r['prep_ms_from_640']:.3f} ms)",
                       flush=True)
     training = []
