@@ -195,13 +195,13 @@ def run_all(args, tmp: Path, placements: dict) -> dict[str, list[dict]]:
     size's median is taken over repeats spread across the whole run instead of over one
     stretch of it.
     """
-    base_pace = args.interval_ms or PACING_MS[64]
+    intervals = {n: args.interval_ms or PACING_MS[n] for n in SIZES}
     reps = {(label, n): [] for label in placements for n in SIZES}
     for r in range(args.repeats):
         for nbytes in SIZES:
-            interval = args.interval_ms or PACING_MS[nbytes]
+            interval = intervals[nbytes]
             for label, cpus in placements.items():
-                rep = one_repeat(nbytes, args.count, interval, tmp, cpus, base_pace)
+                rep = one_repeat(nbytes, args.count, interval, tmp, cpus, intervals[64])
                 if nbytes == PROFILED_BYTES and cpus is None:
                     # right after the unattached run, so the two meet the same conditions
                     rep["runtime_p50_us_profiler_attached"] = float(np.median(run_runtime(
@@ -210,8 +210,8 @@ def run_all(args, tmp: Path, placements: dict) -> dict[str, list[dict]]:
                 print(json.dumps({"repeat": r, "placement": label, "bytes": nbytes,
                                   **{k: round(v, 2) for k, v in rep.items()}}),
                       file=sys.stderr, flush=True)
-    return {label: [summarise(n, args.count, args.interval_ms or PACING_MS[n],
-                              reps[(label, n)]) for n in SIZES] for label in placements}
+    return {label: [summarise(n, args.count, intervals[n], reps[(label, n)]) for n in SIZES]
+            for label in placements}
 
 
 def resolve_cpus(text: str, allowed: list[int]) -> tuple[int, int] | None:
