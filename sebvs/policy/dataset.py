@@ -31,7 +31,7 @@ from sebvs.data.index import INDEX, DatasetIndex
 from .inputs import MODALITY_INPUTS, Normalisation, check_modality, model_input
 
 TASKS = ("nav", "arm")
-OPEN_EPISODES = 512     # episode files a reader keeps open (least recently used closed)
+OPEN_EPISODES = 512     # episode files a reader keeps open (least recently used released)
 
 
 def load_index(root: str | Path, task: str | None = None) -> list[dict]:
