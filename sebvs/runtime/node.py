@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import math
 import os
 import signal
 import time
@@ -34,6 +35,7 @@ TELEMETRY_MAX_RECORDS = 4096     # per period; beyond it records are counted, no
 HANDLER_WINDOW = 2048            # handler times kept for `stats`
 DRAIN_BATCH = 64                 # messages per reader callback before yielding to the loop
 DRAIN_BUDGET_NS = 5_000_000      # ... or this much handler time, whichever comes first
+_SEND_MORE = zmq.SNDMORE | zmq.NOBLOCK
 
 log = logging.getLogger("sebvs.node")
 
@@ -59,7 +61,7 @@ class _Output:
     subscribers_expected: int
     subscribers: int = 0
     seq: int = 0
-    pending: tuple | None = None    # (slot, arrays dict, [(name, offset)]) of a reservation
+    pending: tuple | None = None    # (slot, arrays dict, descriptors) of a reservation
 
 
 @dataclass
@@ -167,15 +169,17 @@ class Node:
             arrays = {n: np.empty(shape, dtype) for n, (shape, dtype) in specs.items()}
             out.pending = (None, arrays, None)
             return arrays
-        dtypes = {n: np.dtype(dt) for n, (_, dt) in specs.items()}
-        shapes = {n: tuple(int(s) for s in shape) for n, (shape, _) in specs.items()}
-        sizes = [int(np.prod(shapes[n])) * dtypes[n].itemsize for n in specs]
+        layout = [(n, [int(d) for d in shape], np.dtype(dt)) for n, (shape, dt) in specs.items()]
+        sizes = [math.prod(shape) * dt.itemsize for _, shape, dt in layout]
         offsets, total = packed_offsets(sizes)
         slot, view = out.ring.reserve(total)
-        arrays = {}
-        for (n, off), size in zip(zip(specs, offsets), sizes):
-            arrays[n] = np.ndarray(shapes[n], dtypes[n], buffer=view[off:off + size])
-        out.pending = (slot, arrays, list(zip(specs, offsets)))
+        arrays, descs = {}, []
+        for (n, shape, dt), off, size in zip(layout, offsets, sizes):
+            arrays[n] = np.ndarray(shape, dt, buffer=view[off:off + size])
+            # the descriptor is complete but for the generation, known at commit: built
+            # here so that emit, which the hop's latency counts from, only fills that in
+            descs.append([n, dtype_to_wire(dt), shape, [out.ring.name, slot, off, 0]])
+        out.pending = (slot, arrays, descs)
         return arrays
 
     def _output(self, output: str) -> _Output:
@@ -194,10 +198,9 @@ class Node:
         reserved = pending is not None and pending[1] is arrays
         if reserved and pending[0] is not None:
             gen = out.ring.commit(pending[0])
-            for name, off in pending[2]:
-                a = arrays[name]
-                descs.append([name, dtype_to_wire(a.dtype), list(a.shape),
-                              [out.ring.name, pending[0], off, gen]])
+            descs = pending[2]
+            for desc in descs:
+                desc[3][3] = gen
         else:
             to_ring = []
             for name, a in arrays.items():
@@ -211,7 +214,7 @@ class Node:
                 else:
                     a = np.ascontiguousarray(a)
                     descs.append([name, dtype_to_wire(a.dtype), list(a.shape), None])
-                    buffers.append(a.data if a.nbytes else b"")
+                    buffers.append(a.data.cast("B") if a.nbytes else b"")  # len() = bytes
             if to_ring:
                 offsets, total = packed_offsets([a.nbytes for _, a in to_ring])
                 slot, view = out.ring.reserve(total)
@@ -234,16 +237,27 @@ class Node:
         header = encode_header(source=self.name, output=output, seq=out.seq, t_sim=t_sim,
                                tick=tick, stamps=stamps, arrays=descs, meta=meta)
         out.seq += 1
-        big = any(len(b) >= SHM_MIN_BYTES for b in buffers)
-        # PUB never blocks: at the high-water mark ZeroMQ drops and the receiver counts the gap
-        out.socket.send_multipart([out.topic, header, *buffers], copy=not big, flags=zmq.NOBLOCK)
+        # Frame by frame rather than send_multipart, whose per-frame checks cost more than
+        # the sends themselves. PUB never blocks: at the high-water mark ZeroMQ drops the
+        # message and the receiver counts the gap.
+        sock = out.socket
+        sock.send(out.topic, _SEND_MORE)
+        if not buffers:
+            sock.send(header, zmq.NOBLOCK)
+            return
+        sock.send(header, _SEND_MORE)
+        last = len(buffers) - 1
+        for i, buf in enumerate(buffers):
+            # zero-copy only pays for large buffers: ZeroMQ must track their release
+            sock.send(buf, zmq.NOBLOCK if i == last else _SEND_MORE,
+                      copy=len(buf) < SHM_MIN_BYTES)
 
     # ------------------------------------------------------------------ receiving
     def _decode(self, frames) -> Message:
         if len(frames) < 2:
             raise WireError(f"{len(frames)} frame(s), expected topic and header")
-        h = decode_header(frames[1].buffer)
-        topic = frames[0].bytes.decode("utf-8", "replace")
+        h = decode_header(frames[1])
+        topic = frames[0].decode("utf-8", "replace")
         msg = Message(topic=topic, source=h["src"], output=h["out"], seq=h["seq"],
                       t_sim=h["ts"], tick=h["tick"], stamps=h["st"], meta=h["m"])
         nxt = 2
@@ -258,7 +272,8 @@ class Node:
                     raise WireError(f"array {name!r}: {len(buf)} bytes, header says {nbytes}")
             else:
                 if not (isinstance(loc, list) and len(loc) == 4 and isinstance(loc[0], str)
-                        and all(isinstance(v, int) for v in loc[1:])):
+                        and isinstance(loc[1], int) and isinstance(loc[2], int)
+                        and isinstance(loc[3], int)):
                     raise WireError(f"array {name!r}: bad shared-memory location {loc!r}")
                 try:
                     buf = self.reader.view(loc[0], loc[1], loc[2], nbytes, loc[3])
@@ -295,7 +310,7 @@ class Node:
             if time.monotonic_ns() > budget_end:
                 break
             try:
-                frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                frames = _recv_message(sock)
             except zmq.Again:
                 if sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
                     continue
@@ -304,7 +319,7 @@ class Node:
             if inp.latest:
                 while True:  # keep only the newest queued message
                     try:
-                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                        frames = _recv_message(sock)
                     except zmq.Again:
                         break
                     st.received += 1
@@ -543,6 +558,18 @@ class Node:
             sock.close(linger=0)  # the shadow context's sockets: term() below would wait on them
         self.ctx.destroy(linger=0)
         return getattr(self, "exit_code", 0)
+
+
+def _recv_message(sock) -> list:
+    """One queued message: topic and header as bytes, array buffers as zero-copy frames.
+
+    Raises zmq.Again if none is queued. Copying the small leading frames is cheaper than
+    wrapping them in zmq.Frame objects, which recv_multipart(copy=False) would do.
+    """
+    frames = [sock.recv(zmq.NOBLOCK)]
+    while sock.getsockopt(zmq.RCVMORE):
+        frames.append(sock.recv(zmq.NOBLOCK, copy=len(frames) < 2))
+    return frames
 
 
 @types.coroutine

@@ -75,7 +75,7 @@ class RingWriter:
             os.close(fd)
         head = np.ndarray((3,), np.int64, buffer=self._mm)
         head[:] = (MAGIC, self.n_slots, self.slot_bytes)
-        self._gen = np.ndarray((self.n_slots,), np.int64, buffer=self._mm, offset=24)
+        self._gen = _generations(self._mm, self.n_slots)
         self._next = 0
 
     def reserve(self, nbytes: int) -> tuple[int, memoryview]:
@@ -85,17 +85,19 @@ class RingWriter:
             self._create(max(nbytes, 2 * self.slot_bytes) if self.slot_bytes else nbytes)
         slot = self._next
         self._next = (slot + 1) % self.n_slots
-        self._gen[slot] += 1 if self._gen[slot] % 2 == 0 else 2
+        self._gen[slot] += 2 if self._gen[slot] & 1 else 1
         start = PAGE + slot * self.slot_bytes
         return slot, memoryview(self._mm)[start:start + nbytes]
 
     def commit(self, slot: int) -> int:
         """Publish a reserved slot; returns the (even) generation to put on the wire."""
-        self._gen[slot] += 1
-        return int(self._gen[slot])
+        gen = self._gen[slot] + 1
+        self._gen[slot] = gen
+        return gen
 
     def close(self, unlink: bool = True) -> None:
         if self._mm is not None:
+            self._gen.release()
             self._gen = None
             try:
                 self._mm.close()
@@ -113,7 +115,7 @@ class RingReader:
     """The consumer side: maps rings by name on first use and checks slot generations."""
 
     def __init__(self, max_maps: int = 16):
-        self._maps: dict[str, tuple[mmap.mmap, np.ndarray, int, int]] = {}
+        self._maps: dict[str, tuple[mmap.mmap, memoryview, int, int]] = {}
         self.max_maps = max_maps
 
     def _map(self, name: str):
@@ -132,9 +134,9 @@ class RingReader:
         if magic != MAGIC or PAGE + n_slots * slot_bytes > size:
             mm.close()
             raise ValueError(f"ring {name!r} has a bad header")
-        gen = np.ndarray((int(n_slots),), np.int64, buffer=mm, offset=24)
+        gen = _generations(mm, int(n_slots))
         if len(self._maps) >= self.max_maps:  # producers that grew or restarted leave old rings
-            self._maps.pop(next(iter(self._maps)))
+            _release(self._maps.pop(next(iter(self._maps))))
         entry = (mm, gen, int(n_slots), int(slot_bytes))
         self._maps[name] = entry
         return entry
@@ -155,12 +157,28 @@ class RingReader:
         return entry is not None and entry[1][slot] == generation
 
     def close(self) -> None:
-        for mm, *_ in self._maps.values():
-            try:
-                mm.close()
-            except BufferError:
-                pass
+        for entry in self._maps.values():
+            _release(entry)
         self._maps.clear()
+
+
+def _generations(mm: mmap.mmap, n_slots: int) -> memoryview:
+    """The ring's per-slot generation counters as int64 items.
+
+    A memoryview rather than a numpy array: reading or bumping one counter is a plain
+    Python int operation, several times cheaper than a numpy scalar, and both sit on
+    every message's path.
+    """
+    return memoryview(mm)[24:24 + 8 * n_slots].cast("q")
+
+
+def _release(entry: tuple) -> None:
+    mm, gen = entry[0], entry[1]
+    gen.release()
+    try:
+        mm.close()
+    except BufferError:
+        pass  # a consumer still holds a view; the mapping goes when it does
 
 
 def remove_run_rings(run_id: str, pattern: str = "*") -> list[str]:

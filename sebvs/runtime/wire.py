@@ -76,7 +76,12 @@ def dtype_to_wire(dtype: np.dtype) -> Any:
     return [fields, dtype.itemsize]
 
 
+_DTYPES: dict[str, np.dtype] = {}   # wire string -> dtype, as every message asks again
+
+
 def dtype_from_wire(desc: Any) -> np.dtype:
+    if isinstance(desc, str) and desc in _DTYPES:
+        return _DTYPES[desc]
     try:
         if isinstance(desc, str):
             dt = np.dtype(desc)
@@ -90,6 +95,8 @@ def dtype_from_wire(desc: Any) -> np.dtype:
         raise WireError(f"bad dtype descriptor {desc!r}: {exc}") from None
     if dt.hasobject:
         raise WireError(f"object dtype {desc!r} refused")
+    if isinstance(desc, str) and len(_DTYPES) < 256:
+        _DTYPES[desc] = dt
     return dt
 
 
@@ -132,11 +139,12 @@ def array_spec(desc) -> tuple[str, np.dtype, tuple[int, ...], int, Any]:
         raise WireError(f"bad array descriptor {desc!r}")
     name, dt_desc, shape, loc = desc
     dt = dtype_from_wire(dt_desc)
-    if (not isinstance(shape, list) or len(shape) > MAX_NDIM
-            or not all(isinstance(n, int) and n >= 0 for n in shape)):
+    if not isinstance(shape, list) or len(shape) > MAX_NDIM:
         raise WireError(f"array {name!r}: bad shape {shape!r}")
     nbytes = dt.itemsize
     for n in shape:
+        if not isinstance(n, int) or n < 0:
+            raise WireError(f"array {name!r}: bad shape {shape!r}")
         nbytes *= n
     if nbytes > MAX_ARRAY_BYTES:
         raise WireError(f"array {name!r} claims {nbytes} bytes (max {MAX_ARRAY_BYTES})")
