@@ -27,6 +27,7 @@ test: $(STAMP) gl
 
 bench: $(STAMP) gl
 	$(VPY) tools/bench_hops.py --quick --json out/bench_hops.json
+	$(VPY) tools/bench_hop_cpu.py --quick --json out/bench_hop_cpu.json
 
 clean:
 	rm -rf $(VENV) runs out
