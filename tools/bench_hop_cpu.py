@@ -59,16 +59,6 @@ def _spec(name: str, tmp: str, outputs: dict | None = None, inputs: dict | None 
             "control": f"ipc://{tmp}/{name}.ctl", "telemetry": f"ipc://{tmp}/{name}.tel"}
 
 
-def _close(node: Node) -> None:
-    for out in node.outputs.values():
-        out.ring.close(unlink=True)
-    node.reader.close()
-    for sock in [i.socket for i in node.inputs.values()] + \
-            [o.socket for o in node.outputs.values()] + [node.telemetry_socket, node.control]:
-        sock.close(linger=0)
-    node.ctx.destroy(linger=0)
-
-
 async def measure(nbytes: int, count: int) -> dict:
     """Per-message emit and receive times in us under each condition (medians and p90)."""
     with tempfile.TemporaryDirectory(prefix="bench-hop-cpu-") as tmp:
@@ -95,8 +85,8 @@ async def measure(nbytes: int, count: int) -> dict:
                     "paced": _paced(sender, receiver, inp, pattern, count, fill=False),
                     "after_fill": _paced(sender, receiver, inp, pattern, count, fill=True)}
         finally:
-            _close(sender)
-            _close(receiver)
+            sender.close()
+            receiver.close()
 
 
 def _reserve(sender: Node, pattern: np.ndarray, fill: bool) -> dict:

@@ -549,6 +549,11 @@ class Node:
         await asyncio.sleep(0.01)  # let the reply to `stop` leave
         self.tasks[0].cancel()
         await asyncio.gather(self.tasks[0], return_exceptions=True)
+        self.close()
+        return getattr(self, "exit_code", 0)
+
+    def close(self) -> None:
+        """Unlink our rings, unmap the ones we read, close every socket: shutdown's last step."""
         for out in self.outputs.values():
             if out.ring is not None:
                 out.ring.close(unlink=True)
@@ -557,7 +562,6 @@ class Node:
                 [o.socket for o in self.outputs.values()] + [self.telemetry_socket]:
             sock.close(linger=0)  # the shadow context's sockets: term() below would wait on them
         self.ctx.destroy(linger=0)
-        return getattr(self, "exit_code", 0)
 
 
 def _recv_message(sock) -> list:
