@@ -13,7 +13,6 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[var] = "1"
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -24,6 +23,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sebvs.dvs.emulator import EventEmulator  # noqa: E402
 from sebvs.dvs.params import preset  # noqa: E402
+from tools.benchio import print_report  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -65,11 +65,7 @@ def main() -> int:
     report = {"results": results, "threads": 1,
               "target": {"paper_640_ms_le_4": p640["ms_per_frame_p50"] <= 4.0},
               "reference": "v2e EventEmulator, DESIGN.md: 18-36 ms per 640x640 frame"}
-    text = json.dumps(report, indent=2)
-    print(text)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
+    print_report(report, args.json)
     return 0
 
 

@@ -38,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.runtime.node import Node  # noqa: E402
+from tools.benchio import print_report  # noqa: E402
 
 BURST = 32   # messages per round in the warm condition: at most node.DRAIN_BATCH, one callback
 
@@ -166,11 +167,7 @@ def main() -> int:
               "what": "CPU time of emit, and of the reader callback up to the handler's "
                       "start, per message (medians over repeats)",
               **summary}
-    text = json.dumps(report, indent=2)
-    print(text)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
+    print_report(report, args.json)
     return 0
 
 

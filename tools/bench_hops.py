@@ -36,6 +36,7 @@ from sebvs.runtime.profiler import ProfileCollector  # noqa: E402
 from sebvs.runtime.supervisor import Supervisor  # noqa: E402
 from sebvs.runtime.topology import load_topology  # noqa: E402
 from sebvs.runtime.worker import pin_process  # noqa: E402
+from tools.benchio import print_report  # noqa: E402
 
 SIZES = (64, 307_200, 1_228_800, 4_194_304)
 # Pacing per size, the same for runtime and baseline. Raw pyzmq copies a 4 MB payload
@@ -282,11 +283,7 @@ def main() -> int:
         "per_hop": "sender's send call -> receiver's handler start",
         "cpus_available": allowed,
     }
-    text = json.dumps(report, indent=2)
-    print(text)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
+    print_report(report, args.json)
     return 0
 
 
