@@ -122,6 +122,13 @@ class NavHead(nn.Module):
     def forward(self, cls: torch.Tensor) -> torch.Tensor:
         return torch.tanh(self.mlp(cls))
 
+    def encode(self, action: torch.Tensor) -> torch.Tensor:
+        """The loss space of the nav action is the action itself ([-1, 1] already)."""
+        return action
+
+    def predict_loss_space(self, cls: torch.Tensor) -> torch.Tensor:
+        return self(cls)
+
 
 class ArmHead(nn.Module):
     """PolicyHeadArm: class token [B, D] -> pose [x, y, z, roll, pitch, yaw] [B, 6].
@@ -237,14 +244,12 @@ class ERP(nn.Module):
     def predict_loss_space(self, x: torch.Tensor) -> torch.Tensor:
         """x [B, C, S, S] -> the prediction where training compares it with loss_space(y):
         the arm head's [B, 7] (ArmHead.predict_loss_space), the nav action as it is."""
-        cls = self._class_token(x)
-        return self.head.predict_loss_space(cls) if isinstance(self.head, ArmHead) \
-            else self.head(cls)
+        return self.head.predict_loss_space(self._class_token(x))
 
     def loss_space(self, y: torch.Tensor) -> torch.Tensor:
         """Targets [B, 6 | 2] in the space the training loss is taken: the arm head's
         encoding [B, 7], the nav action as it is ([-1, 1] already)."""
-        return self.head.encode(y) if isinstance(self.head, ArmHead) else y
+        return self.head.encode(y)
 
 
 def count_parameters(model: nn.Module) -> int:
