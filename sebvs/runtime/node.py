@@ -242,14 +242,10 @@ class Node:
         # message and the receiver counts the gap.
         sock = out.socket
         sock.send(out.topic, _SEND_MORE)
-        if not buffers:
-            sock.send(header, zmq.NOBLOCK)
-            return
-        sock.send(header, _SEND_MORE)
-        last = len(buffers) - 1
-        for i, buf in enumerate(buffers):
+        sock.send(header, _SEND_MORE if buffers else zmq.NOBLOCK)
+        for i, buf in enumerate(buffers, 1):
             # zero-copy only pays for large buffers: ZeroMQ must track their release
-            sock.send(buf, zmq.NOBLOCK if i == last else _SEND_MORE,
+            sock.send(buf, _SEND_MORE if i < len(buffers) else zmq.NOBLOCK,
                       copy=len(buf) < SHM_MIN_BYTES)
 
     # ------------------------------------------------------------------ receiving
