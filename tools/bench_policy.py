@@ -14,6 +14,7 @@ Training is one Adam step (forward, MSE, backward, update) on random batches.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import platform
 import sys
@@ -107,7 +108,7 @@ def main(argv=None) -> int:
     inference = []
     for size in sizes:
         for t in threads:
-            for m, stem in ((m, st) for st in stems for m in MODALITIES):
+            for stem, m in itertools.product(stems, MODALITIES):
                 r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5),
                                     min_iter=5 if args.quick and size > 320 else 10, stem=stem)
                 inference.append(r)
