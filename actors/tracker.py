@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sebvs.eval.metrics import (arm_metrics, centre_error_px, end_decision_correct,
+from sebvs.metrics import (arm_metrics, centre_error_px, end_decision_correct,
                                 grasp_success, nav_episode_metrics)
 from sebvs.runtime import Actor, Message
 

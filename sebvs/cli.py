@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import json
 import os
 import signal
@@ -11,8 +10,7 @@ import sys
 import tomllib
 
 # subcommand modules with a `register(subparsers)`; each adds its own commands
-PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.sim.cli", "sebvs.data.cli", "sebvs.policy.cli",
-           "sebvs.eval.cli")
+PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli")
 
 
 def _cmd_run(args) -> int:
@@ -191,8 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_profile)
 
     for name in PLUGINS:
-        if importlib.util.find_spec(name) is not None:
-            importlib.import_module(name).register(sub)
+        importlib.import_module(name).register(sub)
     return p
 
 

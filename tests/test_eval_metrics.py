@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from sebvs.eval.metrics import (arm_metrics, nav_episode_metrics, paired_comparison,
+from sebvs.metrics import (arm_metrics, nav_episode_metrics, paired_comparison,
                                 success_radius, wilson_interval, yaw_error_deg)
 
 

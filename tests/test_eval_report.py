@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sebvs.eval.metrics import nav_episode_metrics
+from sebvs.metrics import nav_episode_metrics
 from sebvs.eval.report import aggregate_nav, plot_success, render_report
 
 
@@ -66,7 +66,7 @@ def test_arm_success_plot_with_certain_outcomes(tmp_path):
                         "end_decision_correct": True}}
            for seed in range(14) for mod in ("expert", "rgb") for scen in ("single",)]
     # the Wilson upper bound of 14 successes in 14 is 1 - 1e-16
-    from sebvs.eval.metrics import wilson_interval
+    from sebvs.metrics import wilson_interval
     assert wilson_interval(14, 14)[1] < 1.0
     plot_success({"task": "arm", "episodes": eps}, tmp_path / "s.png")
     assert (tmp_path / "s.png").stat().st_size > 5000

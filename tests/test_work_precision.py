@@ -1,7 +1,7 @@
 import csv
 import json
 
-from sebvs.eval.work_precision import pareto_front, plot_study, write_csv, write_summary
+from sebvs.numerics.work_precision import pareto_front, plot_study, write_csv, write_summary
 
 POINTS = [
     {"method": "euler", "setting": 0.01, "error": 1.0, "seconds": 0.1},

@@ -3,9 +3,9 @@ runs against a reference, the synthetic policy data, all in a few seconds."""
 import numpy as np
 import pytest
 
-from sebvs.eval import wp_events as ev
-from sebvs.eval import wp_physics as ph
-from sebvs.eval import wp_policy as pol
+from sebvs.numerics import wp_events as ev
+from sebvs.numerics import wp_physics as ph
+from sebvs.numerics import wp_policy as pol
 
 
 def stream(*events):
@@ -101,7 +101,7 @@ def test_synthetic_dataset_layout_and_baseline(tmp_path):
 
 # ------------------------------------------------------------------ event study end to end
 def test_event_study_converges_with_the_sampling_rate():
-    from sebvs.eval import wp_events_run
+    from sebvs.numerics import wp_events_run
     cfg = {"ev_rates": (100, 1000), "ev_ref_hz": 2000, "ev_seconds": 0.3}
     l1, timing, note = wp_events_run.study(cfg, seed=0)
     assert [p["setting"] for p in l1] == [100, 1000] * len(wp_events_run.PRESETS)
@@ -115,7 +115,7 @@ def test_event_study_converges_with_the_sampling_rate():
 
 def conveyor_frames(seed, seconds=0.1, ref_hz=1000, belt_speed=0.25):
     """(frames (N+1, 80, 80) uint8, the motion after its last frame) of the conveyor."""
-    from sebvs.eval import wp_events_run
+    from sebvs.numerics import wp_events_run
     m = wp_events_run.conveyor_motion(seed, ref_hz, belt_speed)
     frames, _, _ = wp_events_run.luma_sequence(m, seconds, ref_hz)
     return frames, m
@@ -139,7 +139,7 @@ def test_conveyor_luma_sequence_is_seeded_and_moves():
 
 
 def test_conveyor_study_points_carry_the_documented_fields():
-    from sebvs.eval import wp_events_run
+    from sebvs.numerics import wp_events_run
     cfg = {"ev_rates": (100, 1000), "ev_ref_hz": 2000, "ev_seconds": 0.2,
            "ev_belt_speeds": (0.25,)}
     l1, timing, note = wp_events_run.study(cfg, seed=0, motion="conveyor")

@@ -3,7 +3,7 @@
 
     tools/stability_sweep.py [--quick] --out DIR
 
-Runs the grid of sebvs/eval/stability.py (QUICK: the one tests/test_stability_sweep.py
+Runs the grid of sebvs/numerics/stability.py (QUICK: the one tests/test_stability_sweep.py
 runs; FULL otherwise) and writes DIR/stability.json:
     {"grid", "counts": {"stable", "detected", "undetected"}, "by_kind": {kind: counts},
      "cases": [{"name", "kind", "params", "class", "reason", "t"}], "wall_seconds"}
@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from tqdm import tqdm  # noqa: E402
 
-from sebvs.eval import stability  # noqa: E402
+from sebvs.numerics import stability, sweep  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for case in tqdm(cases, unit="case", desc=f"stability sweep ({grid})", dynamic_ncols=True):
         results.append(stability.run_case(case))
-    summary = {"grid": grid, **stability.summarise(results),
+    summary = {"grid": grid, **sweep.summarise(results),
                "wall_seconds": round(time.perf_counter() - t0, 2)}
     (out / "stability.json").write_text(json.dumps(summary, indent=1, default=str))
     print(f"{len(results)} cases: {summary['counts']}")

@@ -10,14 +10,14 @@ Studies (each: DIR/<name>.png, DIR/<name>.csv, and an entry in DIR/summary.json
 
   physics_nav       integrator x timestep, nav robot after N s of seeded commands:
                     base position error (m) vs the reference (rk4, dt 1e-4 s) against wall
-                    seconds per simulated second (sebvs/eval/wp_physics.py)
+                    seconds per simulated second (sebvs/numerics/wp_physics.py)
   physics_belt      a box dropped onto a belt moving at 0.5 m/s (static geom with
                     surfacevel, the conveyor's mechanism; our own MJCF), carried for N s:
                     contacts and friction, same axes
   physics_conveyor  a cube carried by the arm scene's moving belt, same axes
   events            dvs sampling rate per emulator preset: relative L1 of ON/OFF count
                     frames per control tick vs a reference sampled at 10 kHz, against
-                    wall s per simulated s of render + emulation (sebvs/eval/wp_events.py);
+                    wall s per simulated s of render + emulation (sebvs/numerics/wp_events.py);
   events_timing     the same runs, p90 event-timestamp error (us) as the error axis
   events_conveyor   the same two axes on the arm scene's moving conveyor (3 seeded cubes,
   events_conveyor_timing  arm at HOME, wrist camera; one line per preset and belt speed,
@@ -45,12 +45,12 @@ sys.path.insert(0, str(ROOT))
 
 from tqdm import tqdm  # noqa: E402
 
-from sebvs.eval import wp_physics  # noqa: E402  (imports sebvs.sim: MUJOCO_GL first)
-from sebvs.eval.work_precision import plot_study, write_csv, write_summary  # noqa: E402
+from sebvs.numerics import wp_physics  # noqa: E402  (imports sebvs.sim: MUJOCO_GL first)
+from sebvs.numerics.work_precision import plot_study, write_csv, write_summary  # noqa: E402
 
 STUDIES = ("physics_nav", "physics_belt", "physics_conveyor", "events", "events_timing",
            "events_conveyor", "events_conveyor_timing", "policy")
-# event-emulation studies per motion of sebvs/eval/wp_events_run.py: (rel L1, timing)
+# event-emulation studies per motion of sebvs/numerics/wp_events_run.py: (rel L1, timing)
 EVENT_STUDIES = {"nav": ("events", "events_timing"),
                  "conveyor": ("events_conveyor", "events_conveyor_timing")}
 
@@ -79,7 +79,7 @@ def _event_study(motion: str, cfg: dict, seed: int,
                  tick) -> tuple[list[dict], list[dict], str]:
     """wp_events_run.study for one motion; a conveyor failure leaves no points and a note
     (the other studies' figures still come out), a nav failure raises."""
-    from sebvs.eval import wp_events_run
+    from sebvs.numerics import wp_events_run
     try:
         return wp_events_run.study(cfg, seed, progress=tick, motion=motion)
     except Exception as exc:   # noqa: BLE001
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             "policy": 0}
     for motion, names in EVENT_STUDIES.items():
         if set(names) & set(only):
-            from sebvs.eval import wp_events_run
+            from sebvs.numerics import wp_events_run
             plan[names[0]] = wp_events_run.n_runs(cfg, motion)
     if "policy" in only:
         plan["policy"] = 0 if a.checkpoints else 3 * len(cfg["pol_sizes"])
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
                                 **labels, "error_label": "p90 event-timestamp error [us]"})
     if "policy" in only:
         bar.set_postfix_str("policy")
-        from sebvs.eval import wp_policy
+        from sebvs.numerics import wp_policy
         if a.checkpoints:
             pts = [p for c in a.checkpoints for p in wp_policy.real_points(a.data, c)]
             note = (f"real: checkpoints {', '.join(map(str, a.checkpoints))} on the "

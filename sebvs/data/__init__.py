@@ -1,0 +1,1 @@
+"""Recorded demonstrations: episode files (HDF5), the dataset index, and the `sebvs record` / `sebvs data` commands."""

@@ -19,7 +19,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from .metrics import arm_metrics, paired_comparison, wilson_interval
+from ..metrics import arm_metrics, paired_comparison, wilson_interval
 
 MODALITY_ORDER = ("expert", "rgb", "event", "rgb+event")
 NAME = {"expert": "Expert (reference)", "rgb": "RGB-only", "event": "Event-only",

@@ -17,7 +17,7 @@ import numpy as np
 
 from sebvs.dvs.render import event_image
 
-from .metrics import centre_error_px
+from ..metrics import centre_error_px
 
 CAPTION_PX = 22              # height of the caption strip below the image
 EVENT_ALPHA = 0.8            # events over the RGB: opaque enough to read, the scene still shows

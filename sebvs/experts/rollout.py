@@ -16,7 +16,7 @@ from sebvs.sim.render import FrameRenderer
 
 import mujoco  # noqa: E402
 
-from ..eval.metrics import nav_episode_metrics  # noqa: E402
+from ..metrics import nav_episode_metrics  # noqa: E402
 from .detector import ColorDetector  # noqa: E402
 from .nav import NavExpert, NavExpertConfig  # noqa: E402
 

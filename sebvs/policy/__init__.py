@@ -1,0 +1,1 @@
+"""The ERP transformer policies: model, inputs, dataset loader, training, checkpoints and inference."""

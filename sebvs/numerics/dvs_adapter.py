@@ -6,8 +6,7 @@
 
 `run` feeds every frame to a fresh EventEmulator (preset with `overrides`, e.g.
 downsample=1.0 when the frames are already at the emulated size, as the camera's
-luma_scale renders them) and times only the emulator's own work. Importing this module
-raises ImportError while sebvs.dvs has no emulator, which the studies treat as "not run".
+luma_scale renders them) and times only the emulator's own work.
 """
 from __future__ import annotations
 
@@ -15,7 +14,7 @@ import time
 
 import numpy as np
 
-from sebvs.dvs.emulator import EVENT_DTYPE, EventEmulator  # ImportError until it lands
+from sebvs.dvs.emulator import EVENT_DTYPE, EventEmulator
 from sebvs.dvs.params import PRESETS, preset
 
 

@@ -29,8 +29,6 @@ Points: {"method", "setting" (rate, Hz), "error", "seconds", "render_s_per_frame
 "emulator_s", "reference_hz", "sim_seconds", "motion", "window_s", the fields of
 wp_events.event_errors (rel_l1, ts_median_us, ts_p90_us, count_ratio, unmatched, events,
 ref_events)}; conveyor points add "belt_speed" (m/s).
-
-Needs sebvs.dvs (import fails with ImportError without it, and the study is skipped).
 """
 from __future__ import annotations
 
@@ -42,11 +40,12 @@ from typing import Callable
 import numpy as np
 
 from sebvs.sim import make_scene
+from sebvs.sim.arm import BELT_ACCEL
 from sebvs.sim.render import FrameRenderer
 
 import mujoco  # noqa: E402
 
-from . import dvs_adapter  # ImportError while sebvs.dvs has no emulator
+from . import dvs_adapter
 from . import wp_events
 from .wp_physics import nav_commands
 
@@ -99,7 +98,6 @@ def nav_motion(seed: int, seconds: float, ref_hz: int) -> Motion:
 
 def conveyor_warmup_s(belt_speed: float) -> float:
     """Simulated s from reset to steady motion: the belt's ramp to speed, then the cubes'."""
-    from sebvs.sim.arm import BELT_ACCEL
     return belt_speed / BELT_ACCEL + CUBE_SETTLE_S
 
 

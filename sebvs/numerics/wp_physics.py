@@ -19,7 +19,7 @@ Cases:
   belt      a 10 cm cube dropped 2 cm onto a belt whose surface moves at 0.5 m/s (a static
             geom with surfacevel, the mechanism of the arm scene's conveyor), carried for
             N s: contacts and friction, which the nav robot never touches. Our own MJCF
-            (sebvs.eval.stability.belt_mjcf), so it runs before the arm scene exists.
+            (sebvs.numerics.stability.belt_mjcf): its plausibility is easy to state.
   conveyor  a cube carried by the arm scene's moving belt (sebvs/sim/arm.py), the UR5
             holding HOME under its joint servos: `conveyor_case()`.
 
@@ -38,9 +38,12 @@ from typing import Callable
 import numpy as np
 
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco
-from sebvs.sim.stability import StabilityMonitor
+from sebvs.sim.scene import INTEGRATORS as ALL
+from sebvs.sim.stability import Limits, StabilityMonitor
 
 import mujoco  # noqa: E402
+
+from .stability import BELT_TOP, BOX, belt_mjcf
 
 INTEGRATORS = ("euler", "implicitfast", "rk4", "discrete")
 TIMESTEPS = (0.0005, 0.001, 0.002, 0.005, 0.01)      # s; all divide the 50 ms control tick
@@ -99,9 +102,6 @@ class _Plain:
 
 
 def belt_case(speed: float = 0.5, drop: float = 0.02) -> Case:
-    from .stability import BELT_TOP, BOX, belt_mjcf
-    from sebvs.sim.scene import INTEGRATORS as ALL
-    from sebvs.sim.stability import Limits
 
     def build(integrator: str, dt: float):
         model = mujoco.MjModel.from_xml_string(belt_mjcf(drop, speed, 0.0, 10.0))

@@ -13,7 +13,7 @@ class:
   undetected  the monitor stayed silent but a state was not plausible (NaN/inf, a body
               where it cannot be, an absurd speed or energy): a silent blow-up, a detector
               gap; for emulator cases, any other exception, a numpy RuntimeWarning or
-              insane events (sebvs/eval/dvs_cases.py)
+              insane events (sebvs/numerics/dvs_cases.py)
 
 The grids (QUICK for the test suite, FULL for tools/stability_sweep.py):
   nav_servo    servo_gain x integrator x timestep, commands alternating every 0.5 s
@@ -21,8 +21,8 @@ The grids (QUICK for the test suite, FULL for tools/stability_sweep.py):
                robot driven into a wall of a 3 m room, x integrator x timestep
   belt         a box dropped from `drop` m onto a belt moving at `speed` m/s (a static geom
                with surfacevel, as the arm scene's conveyor), contact time constant ratio,
-               x integrator x timestep. Our own minimal MJCF: the sweep does not wait for the
-               arm scene, and its plausibility is easy to state.
+               x integrator x timestep. Our own minimal MJCF, whose plausibility is easy
+               to state.
   arm          the real arm scene (sebvs/sim/arm.py): UR5 holding HOME (its idle command
                every 0.1 s control tick, scene.scripted before every step, as the sim
                actor), 3 cubes, one stiff knob at a time (servo_gain; contact ratio =
@@ -31,8 +31,7 @@ The grids (QUICK for the test suite, FULL for tools/stability_sweep.py):
                timestep. Plausibility: ArmPlausibility (energy sources and geometry, not
                the monitor's checks).
   dvs          emulator extremes (black, saturated, alternating frames, dt 0 and 100 s,
-               cutoff extremes, a time step backwards), sebvs/eval/dvs_cases.py, present
-               once sebvs.dvs has its emulator.
+               cutoff extremes, a time step backwards), sebvs/numerics/dvs_cases.py.
 
 Counts (stable / detected / undetected), 2 shared cores, load average 2.6-2.8 (`uptime`):
   tools/stability_sweep.py --quick --out DIR   180 cases, 6.5 s: 143 / 37 / 0
@@ -47,30 +46,21 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from sebvs.sim import make_scene
+from sebvs.sim.arm import CONVEYOR_SOLIDS, HOME_POSE
 from sebvs.sim.scene import INTEGRATORS as _ALL
 from sebvs.sim.stability import Limits, StabilityMonitor
 
 import mujoco  # noqa: E402
 
-CLASSES = ("stable", "detected", "undetected")
+from . import dvs_cases
+from .sweep import SweepCase, summarise
+
 INTEGRATORS = tuple(i for i in ("euler", "implicitfast", "rk4", "discrete") if i in _ALL)
-
-
-@dataclass(frozen=True)
-class SweepCase:
-    """One setting to try. kind: "nav_servo" | "nav_contact" | "belt" | "arm" | "dvs"."""
-    kind: str
-    params: dict = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        return self.kind + "[" + ",".join(f"{k}={v}" for k, v in self.params.items()) + "]"
 
 
 # ---------------------------------------------------------------------- the grids
@@ -312,7 +302,6 @@ class ArmPlausibility:
     TILT_TOL = 0.1      # rad
 
     def __init__(self, scene, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        from sebvs.sim.arm import HOME_POSE
         self.scene = scene
         self.cubes = scene.cube_body                                   # (N,) body ids
         self.halves = np.asarray(scene.halves, dtype=np.float64)        # (N,) m
@@ -347,7 +336,6 @@ class ArmPlausibility:
     def _solids(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
         """World-aligned (lo, hi) corners (B, 3) of the conveyor's static boxes, from the
         model's geoms (belt, frame, rails are world children without rotation)."""
-        from sebvs.sim.arm import CONVEYOR_SOLIDS
         ids = [model.geom(n).id for n in CONVEYOR_SOLIDS]
         for i in ids:
             aligned = np.allclose(model.geom_quat[i], [1, 0, 0, 0])
@@ -465,34 +453,13 @@ def run_physics_case(case: SweepCase) -> dict:
             "reason": reason or silent or "", "t": t}
 
 
-def classify_exception(exc: BaseException) -> tuple[str, str]:
-    """Emulator-style cases: a ValueError with a message is a clear refusal (detected);
-    anything else is a crash nobody meant (undetected)."""
-    if isinstance(exc, ValueError) and str(exc):
-        return "detected", f"ValueError: {exc}"
-    return "undetected", f"{type(exc).__name__}: {exc}"
-
-
-def summarise(results: list[dict]) -> dict:
-    """{"counts": {class: n}, "by_kind": {kind: {class: n}}, "cases": results}."""
-    counts = {c: 0 for c in CLASSES}
-    by_kind: dict[str, dict[str, int]] = {}
-    for r in results:
-        counts[r["class"]] += 1
-        k = by_kind.setdefault(r["kind"], {c: 0 for c in CLASSES})
-        k[r["class"]] += 1
-    return {"counts": counts, "by_kind": by_kind, "cases": results}
-
-
 def all_cases(grid: str = "quick") -> list[SweepCase]:
-    """Physics cases plus the emulator's when sebvs.dvs provides them."""
-    from . import dvs_cases
+    """Physics cases plus the emulator's."""
     return physics_cases(grid) + dvs_cases.cases(grid)
 
 
 def run_case(case: SweepCase) -> dict:
     if case.kind == "dvs":
-        from . import dvs_cases
         return dvs_cases.run(case)
     return run_physics_case(case)
 

@@ -1,4 +1,4 @@
-"""Emulator extremes for the stability sweep (sebvs.eval.stability, kind "dvs").
+"""Emulator extremes for the stability sweep (sebvs.numerics.stability, kind "dvs").
 
 Each case feeds a short frame sequence to a fresh emulator (through dvs_adapter) and is
 classified:
@@ -8,7 +8,6 @@ classified:
               frame than the lin-log range (ln 255 ~ 5.5) over the smallest threshold
               allows, and numpy raised no RuntimeWarning (log(0), overflow, NaN)
   undetected  anything else: another exception, a RuntimeWarning, or insane output
-`cases()` is empty when sebvs.dvs has no emulator yet: the sweep then runs without them.
 """
 from __future__ import annotations
 
@@ -17,16 +16,9 @@ import warnings
 
 import numpy as np
 
-from .stability import SweepCase, classify_exception
+from . import dvs_adapter
+from .sweep import SweepCase, classify_exception
 
-
-def available() -> bool:
-    """True when the emulator can be driven (sebvs.eval.dvs_adapter imports)."""
-    try:
-        from . import dvs_adapter  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 SIZE = 32          # px, the emulated frames (downsample 1): extremes need no resolution
 MIN_THRES = 0.01   # DESIGN.md 4: thresholds are clipped at >= 0.01
@@ -81,9 +73,6 @@ EXTREMES = {
 
 
 def cases(grid: str = "quick") -> list[SweepCase]:
-    if not available():
-        return []
-    from . import dvs_adapter
     presets = ("paper",) if grid == "quick" else tuple(dvs_adapter.presets())
     return [SweepCase("dvs", {"extreme": name, "preset": p}) for p in presets
             for name in EXTREMES]
@@ -112,7 +101,6 @@ def check_events(ev: tuple, frames: np.ndarray, t_ns: np.ndarray) -> str | None:
 
 
 def run(case: SweepCase) -> dict:
-    from . import dvs_adapter
     kind, overrides = EXTREMES[case.params["extreme"]]
     overrides = {"downsample": 1.0, **overrides}   # frames are at the emulated size
     frames, t_ns = _frames(kind)
