@@ -4,7 +4,9 @@ Input   luma    {"luma": uint8 [H, W]} from the camera at its dvs rate; t_sim ->
 Output  events  {"events": EVENT_DTYPE [N]} (x, y, t ns, p), time-sorted, emitted with the
                 input's tick and meta, plus event_sensor [w, h] and frame [W, H]
 A new episode (meta `episode` changes) restarts the stream: the scene jumps, and a jump
-is not a brightness change the sensor would see.
+is not a brightness change the sensor would see. A frame the emulator refuses (ValueError:
+a bad timestamp or array) is counted in bad_frames and dropped; the stream goes on. A gap
+over the emulator's max_gap_s restarts the sensor and is counted in gap_restarts.
 """
 from __future__ import annotations
 
@@ -31,19 +33,30 @@ class Emulator(Actor):
         self.episode = None
         self.events_out = 0
         self.bad_frames = 0
+        self.gap_restarts = 0
 
     async def on_luma(self, msg: Message) -> None:
         episode = msg.meta.get("episode")
         if episode != self.episode:
             self.emulator.reset()
             self.episode = episode
-        t_ns = round((msg.t_sim or 0.0) * 1e9)
+        restarts, prev_t = self.emulator.gap_restarts, self.emulator.t_ns
         try:
+            # inside the try: round() of an inf t_sim raises OverflowError, of NaN ValueError
+            t_ns = round((msg.t_sim or 0.0) * 1e9)
             events = self.emulator.step(msg.arrays["luma"], t_ns)
-        except (ValueError, KeyError) as exc:
+        except (ValueError, KeyError, OverflowError) as exc:
             self.bad_frames += 1
-            self.log.error("frame at tick %s refused: %s", msg.tick, exc)
+            # a stream stuck on bad frames (e.g. time went back) must not flood the log
+            if self.bad_frames <= 10 or self.bad_frames % 1000 == 0:
+                self.log.error("frame at tick %s refused (%d so far): %s",
+                               msg.tick, self.bad_frames, exc)
             return
+        if self.emulator.gap_restarts > restarts:
+            self.gap_restarts += 1
+            self.log.warning("tick %s: %.3g s since the previous frame, over max_gap_s; "
+                             "the sensor restarts from this frame", msg.tick,
+                             (self.emulator.t_ns - prev_t) * 1e-9)
         h, w = self.emulator.shape
         luma = msg.arrays["luma"]
         self.events_out += events.size
@@ -53,4 +66,4 @@ class Emulator(Actor):
 
     def stats(self) -> dict:
         return {"events": self.events_out, "frames": self.emulator.frames,
-                "bad_frames": self.bad_frames}
+                "bad_frames": self.bad_frames, "gap_restarts": self.gap_restarts}

@@ -1,4 +1,6 @@
+import hashlib
 import math
+import time
 import warnings
 
 import numpy as np
@@ -6,7 +8,7 @@ import pytest
 
 from sebvs.dvs.accumulator import EventAccumulator, EventGeometry
 from sebvs.dvs.emulator import EVENT_DTYPE, EventEmulator, linlog
-from sebvs.dvs.params import EmulatorParams, preset
+from sebvs.dvs.params import MAX_LEAK_EVENTS, EmulatorParams, preset
 
 CLEAN = dict(downsample=1.0, blur=False)
 
@@ -77,7 +79,7 @@ def test_first_timestamp_is_remembered():
 
 
 def test_exact_lowpass_is_stable_for_any_dt():
-    emu = emulator("paper", sigma_thres=0.0)
+    emu = emulator("paper", sigma_thres=0.0, max_gap_s=1000.0)   # emulated, not a restart
     emu.step(flat(50), 0)
     emu.step(flat(200), 100 * 10 ** 9)      # dt = 100 s: the filter settles, no overshoot
     assert np.allclose(emu.lp, linlog(flat(200)), atol=1e-5)
@@ -92,7 +94,7 @@ def test_exact_lowpass_is_stable_for_any_dt():
                                       ("paper", {"cutoff_hz": 1e6}),
                                       ("paper", {"sigma_thres": 50.0})])
 def test_extreme_inputs_give_finite_bounded_output_without_warnings(frames, name, kw):
-    emu = emulator(name, **kw)
+    emu = emulator(name, max_gap_s=1000.0, **kw)    # the 100 s steps emulated, not restarts
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         t = 0
@@ -213,3 +215,107 @@ def test_accumulator_histogram_and_voxel():
     assert v[1, 0, 1] == pytest.approx(-1.0)
     with pytest.raises(ValueError, match="representation"):
         EventAccumulator(geo, "fancy")
+
+
+# ---------------------------------------------------------------- gaps, int64 time, regression
+
+@pytest.mark.parametrize("size, gap_s", [(16, 1e6), (16, 1e9), (640, 1e6), (640, 1e9)])
+def test_a_long_gap_restarts_the_sensor_quickly_with_no_noise_flood(size, gap_s):
+    # the issue's case: 16 x 16, noisy without refractory, 1e6 s made 25.6 M events (7 s,
+    # 2.8 GB); 1e9 s and 640 x 640 ran out of memory
+    emu = emulator("noisy", refractory_period_s=0.0)
+    f = np.full((size, size), 100, np.uint8)
+    emu.step(f, S)
+    start = time.perf_counter()
+    t1 = S + round(gap_s * S)
+    ev = emu.step(f + 50, t1)
+    assert time.perf_counter() - start < 2.0
+    assert ev.size == 0 and emu.gap_restarts == 1 and emu.t_ns == t1
+    assert np.array_equal(emu.lp, linlog(f + 50)) and np.array_equal(emu.base, emu.lp)
+    ev = emu.step(f + 60, t1 + 10_000_000)      # the stream goes on from the new frame
+    assert ev.size and t1 < ev["t"].min() and ev["t"].max() <= t1 + 10_000_000
+
+
+def test_a_gap_up_to_max_gap_is_emulated_with_bounded_noise():
+    emu = emulator("noisy", refractory_period_s=0.0)
+    f = np.full((160, 160), 100, np.uint8)
+    emu.step(f, 0)
+    ev = emu.step(f, 10 * S)                    # exactly max_gap_s (10 s): not a restart
+    assert emu.gap_restarts == 0
+    per_pixel = np.bincount(ev["y"].astype(int) * 160 + ev["x"], minlength=160 * 160)
+    # a static scene: leak 0.1 Hz over 10 s (jitter 10 %) is one or two, shot noise one
+    assert ev.size > 0 and per_pixel.max() <= 3
+    emu = emulator("noisy", max_gap_s=1.0)
+    emu.step(f, 0)
+    assert emu.step(f, S + 1).size == 0 and emu.gap_restarts == 1
+    emu.reset()
+    assert emu.gap_restarts == 0
+
+
+@pytest.mark.parametrize("t", [2 ** 63, 2 ** 64 - 1, np.uint64(2 ** 63), -1, np.int64(-5),
+                               True, np.float64(1.0)])
+def test_timestamps_outside_int64_ns_are_refused(t):
+    emu = emulator()
+    with pytest.raises(ValueError, match="outside|integer"):
+        emu.step(flat(100), t)                  # as the first frame
+    emu.step(flat(100), S)
+    with pytest.raises(ValueError, match="outside|integer"):
+        emu.step(flat(200), t)
+    assert emu.t_ns == S and emu.step(flat(200), 2 * S).size > 0
+
+
+def test_event_times_near_int64_max_do_not_wrap():
+    # the whole 292-year interval emulated: on a static scene the leak's crossings sit at
+    # its very end, where t0 + frac * dt in float64 is 2**63, one past int64
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        emu = emulator(max_gap_s=1e10, leak_rate_hz=5e-10)
+        emu.step(flat(100), 5)
+        ev = emu.step(flat(100), 2 ** 63 - 1)
+        assert ev.size and (ev["t"] == 2 ** 63 - 1).all()
+        emu = emulator(max_gap_s=1e300)     # a ramp: crossings spread over the interval
+        emu.step(flat(50), 5)
+        ev = emu.step(flat(200), 2 ** 63 - 1)
+    assert ev.size and ev["t"].min() > 5 and ev["t"].max() <= 2 ** 63 - 1
+    assert np.all(np.diff(ev["t"]) >= 0)
+    # a refractory period past int64 ns (1e300 s): only a pixel's first event, no overflow
+    emu = emulator(refractory_period_s=1e300)
+    emu.step(flat(50), 0)
+    assert emu.step(flat(200), 1_000_000).size == 16
+    assert emu.step(flat(50), 2 ** 62).size == 0
+
+
+def _sequence(n=30, h=24, w=32):
+    """A drifting RGB texture with a bright patch; frame intervals from 0 to 2 s."""
+    rng = np.random.default_rng(3)
+    tex = rng.integers(0, 256, (h, 2 * w)).astype(np.uint8)
+    dts = (1_000_000, 10_000_000, 33_000_000, 0, 2_000_000_000, 5_000_000)
+    t = 7_000_000
+    for i in range(n):
+        f = tex[:, i:i + w].copy()
+        f[4:10, 2 + i % 20:8 + i % 20] = 250
+        t += dts[i % len(dts)]
+        yield np.stack([f, f // 2, 255 - f], -1), t
+
+
+@pytest.mark.parametrize("name, kw, expected", [
+    ("paper", {}, (83, "269343aef9381890")),
+    ("noisy", {"downsample": 1.0}, (6768, "06996c53b82ca470")),
+    ("clean", {"blur": False}, (1039, "a8a689e7027d27a4")),
+    ("noisy", {"leak_rate_hz": 20.0, "shot_noise_rate_hz": 50.0, "seed": 5},
+     (4275, "14c9f898ea83f469")),
+])
+def test_normal_streams_give_the_same_events_as_before_the_gap_bound(name, kw, expected):
+    # hashes computed with the emulator before max_gap_s and the int64 checks: frame
+    # intervals up to 2 s must come out bit for bit as they did
+    emu = EventEmulator(preset(name, **kw))
+    ev = np.concatenate([emu.step(f, t) for f, t in _sequence()])
+    assert (ev.size, hashlib.sha256(ev.tobytes()).hexdigest()[:16]) == expected
+
+
+def test_gap_params_are_validated():
+    with pytest.raises(ValueError, match="max_gap_s must be positive"):
+        EmulatorParams(max_gap_s=0.0).validate()
+    with pytest.raises(ValueError, match="leak events per pixel"):
+        EmulatorParams(leak_rate_hz=0.1, max_gap_s=1e6).validate()
+    EmulatorParams(leak_rate_hz=0.1, max_gap_s=MAX_LEAK_EVENTS / 0.1).validate()

@@ -10,7 +10,9 @@ def _cmd_v2e(args) -> int:
     from .convert import convert
     from .params import preset
     try:
-        params = preset(args.preset, **({"seed": args.seed} if args.seed is not None else {}))
+        overrides = {k: v for k, v in (("seed", args.seed), ("max_gap_s", args.max_gap_s))
+                     if v is not None}
+        params = preset(args.preset, **overrides)
         info = convert(args.input, args.out, params, fps=args.fps, progress=not args.quiet)
     except ValueError as exc:
         print(f"sebvs v2e: {exc}", file=sys.stderr)
@@ -40,6 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--fps", type=float, default=None,
                    help="frame rate (required for image folders; overrides a video's)")
     v.add_argument("--seed", type=int, default=None)
+    v.add_argument("--max-gap-s", type=float, default=None,
+                   help="frames further apart restart the sensor (default 10; raise it for "
+                        "slow time-lapse folders)")
     v.add_argument("--quiet", action="store_true", help="no progress bar")
     v.set_defaults(func=_cmd_v2e)
 

@@ -78,4 +78,5 @@ def convert(source: str | Path, out: str | Path, params: EmulatorParams,
             writer.close()
     if writer is None:
         raise ValueError(f"{source}: no frames")
-    return {"frames": n_frames, "events": writer.count, "out": str(out)}
+    return {"frames": n_frames, "events": writer.count, "gap_restarts": emu.gap_restarts,
+            "out": str(out)}

@@ -12,12 +12,18 @@ Per pixel, for 8-bit luma x (DN):
     shot noise: events at rate shot_noise_rate_hz, lower at bright pixels
     refractory: events of a pixel closer than refractory_period_s to its previous one are
           dropped (the memorised level still follows the crossings)
+    gaps: frames further apart than max_gap_s restart the sensor (state from the new frame,
+          no events for the gap), so leak and shot noise never run over an unobserved
+          stretch: per pixel and call at most leak_rate * max_gap_s leak events, one shot
+          noise event, and the lin-log range over the threshold of crossings
 
 Timing: the k-th crossing of a pixel is placed where the straight line from the previous
 filtered level to the new one crosses base + k * theta (ESIM's interpolation), not in a
 slot shared by every pixel's k-th event (v2e's bursts and "pillars"). Timestamps are int64
 nanoseconds (v2e's float32 seconds lose microseconds after tens of seconds), and the first
 frame's time is remembered (v2e starts from 0, so its second frame sees a huge dt).
+Timestamps must lie in [0, 2**63 - 1]; every event time lies between its two frames', so
+none wraps.
 
 Work per frame is a few whole-image numpy passes plus work proportional to the number of
 events; there is no Python loop over events or over per-frame event slots.
@@ -39,6 +45,8 @@ _DN = np.arange(256, dtype=np.float64)
 LINLOG = np.where(_DN <= LINLOG_BREAK, _DN * math.log(LINLOG_BREAK) / LINLOG_BREAK,
                   np.log(np.maximum(_DN, LINLOG_BREAK))).astype(np.float32)
 BANDWIDTH = ((_DN + 20.0) / 275.0).astype(np.float64)
+T_MAX = np.iinfo(np.int64).max
+_OFFSET_CAP = float(2 ** 63 - 1024)   # the largest float64 below 2**63
 
 
 def _lookup(luma: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -59,11 +67,23 @@ def empty_events(n: int = 0) -> np.ndarray:
     return np.zeros(n, EVENT_DTYPE)
 
 
+def _offsets(x: np.ndarray, hi: int) -> np.ndarray:
+    """Non-negative float ns offsets -> int64 (truncated), at most ``hi``.
+
+    A float within 1024 ns of 2**63 cannot be cast to int64 (float(2**63 - 1) is 2**63),
+    so such offsets, which can only mean "at the end of the interval", become ``hi``.
+    Below 2**53 ns (104 days) neither cap binds: the plain cast, bit for bit.
+    """
+    safe = x < _OFFSET_CAP
+    return np.where(safe, np.minimum(np.where(safe, x, 0.0).astype(np.int64), hi), hi)
+
+
 class EventEmulator:
     """Frames in (uint8 RGB or luma, int ns timestamps), events out (EVENT_DTYPE, sorted by t).
 
     The first frame initialises the state and emits nothing. A bad frame raises ValueError
-    and leaves the state as it was.
+    and leaves the state as it was. A frame more than ``max_gap_s`` after the previous one
+    restarts the sensor: nothing is emitted for the gap, and ``gap_restarts`` counts it.
     """
 
     def __init__(self, params: EmulatorParams | None = None):
@@ -73,6 +93,9 @@ class EventEmulator:
         self.input_shape: tuple | None = None
         self.t_ns: int | None = None
         self.frames = 0
+        self.gap_restarts = 0
+        # no int64 dt exceeds 2**63 ns; the cap keeps a max_gap_s of 1e300 (inf ns) legal
+        self._max_gap_ns = round(min(self.params.max_gap_s * 1e9, 2.0 ** 63))
 
     # ------------------------------------------------------------------ input
     def preprocess(self, frame: np.ndarray) -> np.ndarray:
@@ -106,9 +129,12 @@ class EventEmulator:
         if self.input_shape is not None and frame.shape != self.input_shape:
             raise ValueError(f"frame shape {frame.shape} differs from the first frame's "
                              f"{self.input_shape}; call reset() for a new stream")
-        if isinstance(t_ns, float) or not isinstance(t_ns, (int, np.integer)):
+        if isinstance(t_ns, bool) or not isinstance(t_ns, (int, np.integer)):
             raise ValueError(f"timestamp must be an integer number of nanoseconds, got {t_ns!r}")
         t_ns = int(t_ns)
+        if not 0 <= t_ns <= T_MAX:
+            raise ValueError(f"timestamp {t_ns} ns is outside [0, 2**63 - 1] "
+                             "(int64 nanoseconds)")
         if self.t_ns is not None and t_ns < self.t_ns:
             raise ValueError(f"timestamp {t_ns} ns goes back in time (previous {self.t_ns} ns)")
         return np.ascontiguousarray(frame), t_ns
@@ -117,7 +143,7 @@ class EventEmulator:
     def reset(self) -> None:
         """Forget the stream (a new scene or episode); thresholds are drawn again."""
         self.shape = self.input_shape = self.t_ns = None
-        self.frames = 0
+        self.frames = self.gap_restarts = 0
 
     def _init_state(self, luma: np.ndarray, t_ns: int) -> None:
         p = self.params
@@ -134,9 +160,14 @@ class EventEmulator:
         self.noise_rate = (p.shot_noise_rate_hz
                            * 10.0 ** (p.noise_rate_cov_decades * rng.standard_normal((h, w)))
                            ).astype(np.float32)
+        self._start(luma, t_ns)
+
+    def _start(self, luma: np.ndarray, t_ns: int) -> None:
+        """The pixels' memory (filtered and memorised levels, refractory) from this frame;
+        the fixed pattern (thresholds, leak and noise rates) is the chip's and stays."""
         self.lp = linlog(luma)
         self.base = self.lp.copy()
-        self.last_t = np.full((h, w), np.iinfo(np.int64).min // 2, np.int64)
+        self.last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, np.int64)
         self.t_ns = t_ns
 
     # ------------------------------------------------------------------ the model
@@ -153,6 +184,13 @@ class EventEmulator:
         self.frames += 1
         if dt_ns == 0:
             return empty_events()   # a repeated sample carries no new information
+        if dt_ns > self._max_gap_ns:
+            # Nobody observed the sensor over the gap: leak and shot noise integrated over it
+            # would be G * rate events per pixel (25 M on 16 x 16 for 1e6 s), all invented,
+            # and the brightness cannot be interpolated across it. Treat it as a restart.
+            self._start(luma, t_ns)
+            self.gap_restarts += 1
+            return empty_events()
         p = self.params
         dt = dt_ns * 1e-9
         target = linlog(luma)
@@ -211,7 +249,7 @@ class EventEmulator:
                 frac = np.where(np.abs(span) > 1e-12, (level - l0) / span, 1.0)
             frac = np.clip(np.nan_to_num(frac, nan=1.0), 0.0, 1.0)
             # strictly after the previous frame: its own events sit at t0
-            t = t0 + np.maximum(1, np.rint(frac * dt_ns).astype(np.int64))
+            t = t0 + np.maximum(1, _offsets(np.rint(frac * dt_ns), dt_ns))
             pix = idx[rep]
             ev = np.empty(rep.size, EVENT_DTYPE)
             ev["y"], ev["x"] = np.divmod(pix, self.shape[1])
@@ -229,13 +267,14 @@ class EventEmulator:
         hit = np.flatnonzero(self.rng.random(self.shape, dtype=np.float32) < prob)
         ev = np.empty(hit.size, EVENT_DTYPE)
         ev["y"], ev["x"] = np.divmod(hit, self.shape[1])
-        ev["t"] = t0 + 1 + (self.rng.random(hit.size) * (dt_ns - 1)).astype(np.int64)
+        ev["t"] = t0 + 1 + _offsets(self.rng.random(hit.size) * (dt_ns - 1), dt_ns - 1)
         ev["p"] = np.where(self.rng.random(hit.size) < 0.5, 1, -1)
         return ev
 
     def _refractory(self, events: np.ndarray) -> np.ndarray:
         """Drop events of a pixel that come within the refractory period of the one it kept."""
-        period = int(self.params.refractory_period_s * 1e9)
+        # beyond 2**62 ns (146 years) the period is infinite for int64 times anyway
+        period = int(min(self.params.refractory_period_s * 1e9, 2.0 ** 62))
         w = self.shape[1]
         pix = events["y"].astype(np.int64) * w + events["x"]
         order = np.lexsort((events["t"], pix))
@@ -248,7 +287,7 @@ class EventEmulator:
         for r in range(int(counts.max())):
             sel = counts > r
             pos = start[sel] + r
-            ok = t_s[pos] >= last[sel] + period
+            ok = t_s[pos] - period >= last[sel]   # last + period could pass 2**63 - 1
             keep[pos[ok]] = True
             last[np.flatnonzero(sel)[ok]] = t_s[pos[ok]]
         self.last_t.ravel()[pix_s[start]] = last

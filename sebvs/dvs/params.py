@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
+MAX_LEAK_EVENTS = 1000
+
 
 @dataclass(frozen=True)
 class EmulatorParams:
@@ -15,6 +17,7 @@ class EmulatorParams:
     shot_noise_rate_hz: float = 0.0   # noise events per pixel per second (in the dark)
     noise_rate_cov_decades: float = 0.1  # per-pixel spread of the shot-noise rate
     refractory_period_s: float = 0.0  # a pixel cannot fire again within this
+    max_gap_s: float = 10.0           # a longer gap between frames restarts the sensor
     downsample: float = 0.5           # input resize factor before emulation
     blur: bool = True                 # 3x3 Gaussian before emulation
     seed: int = 0
@@ -35,6 +38,13 @@ class EmulatorParams:
                 raise ValueError(f"emulator: {f.name} must be a finite number, got {v!r}")
             if v < 0:
                 raise ValueError(f"emulator: {f.name} must not be negative, got {v!r}")
+        if self.max_gap_s <= 0:
+            raise ValueError("emulator: max_gap_s must be positive")
+        # the leak's crossings are expanded one by one: this bounds them per pixel and frame
+        if self.leak_rate_hz * self.max_gap_s > MAX_LEAK_EVENTS:
+            raise ValueError(f"emulator: leak_rate_hz * max_gap_s = "
+                             f"{self.leak_rate_hz * self.max_gap_s:g} leak events per pixel in "
+                             f"one frame interval, over {MAX_LEAK_EVENTS}; lower max_gap_s")
         if self.pos_thres <= 0 or self.neg_thres <= 0:
             raise ValueError("emulator: pos_thres and neg_thres must be positive")
         if not 0 < self.downsample <= 1:

@@ -26,8 +26,8 @@ MAX_PER_FRAME = math.ceil(math.log(255.0) / MIN_THRES) + 1
 
 
 def _frames(kind: str, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """-> (frames (n, SIZE, SIZE) uint8, t_ns (n,) int64), 10 ms apart unless the kind
-    is about time."""
+    """-> (frames (n, SIZE, SIZE) uint8, t_ns (n,) int64; uint64 for "past_int64"), 10 ms
+    apart unless the kind is about time."""
     rng = np.random.default_rng(0)
     t = np.arange(n, dtype=np.int64) * 10_000_000
     if kind == "black":
@@ -44,6 +44,13 @@ def _frames(kind: str, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
         t[n // 2] = t[n // 2 - 1]                  # two frames at the same time
     elif kind == "dt100":
         t[n // 2:] += 100_000_000_000              # a 100 s gap
+    elif kind == "gap1e6":
+        t[n // 2:] += 10 ** 15                     # a 1e6 s gap: a restart, no noise flood
+    elif kind == "int64_max":
+        t[-1] = np.iinfo(np.int64).max             # the last representable nanosecond
+    elif kind == "past_int64":
+        t = t.astype(np.uint64)
+        t[n // 2] = np.uint64(2 ** 63)             # past int64: must be refused, not wrapped
     elif kind == "backwards":
         t[n // 2] = t[n // 2 - 1] - 1_000_000      # time runs back: must be refused
     elif kind == "nan":
@@ -61,7 +68,12 @@ EXTREMES = {
     "saturated": ("saturated", {}),
     "alternating": ("alternating", {}),
     "dt0": ("dt0", {}),
-    "dt100": ("dt100", {}),
+    "dt100": ("dt100", {"max_gap_s": 1000.0}),   # emulated over the gap, not restarted
+    "gap1e6_noisy": ("gap1e6", {"leak_rate_hz": 0.1, "shot_noise_rate_hz": 5.0}),
+    "t_int64_max": ("int64_max", {}),
+    # the whole ~292-year gap emulated, not restarted: crossing times near 2**63 ns
+    "t_int64_max_no_restart": ("int64_max", {"max_gap_s": 1e10}),
+    "t_past_int64": ("past_int64", {}),
     "backwards": ("backwards", {}),
     "nan_frame": ("nan", {}),
     "shape_change": ("reshaped", {}),
