@@ -36,7 +36,7 @@ class GarbageSource(Actor):
         ]
 
     async def run(self) -> None:
-        sock = self._node.outputs["frames"].socket
+        sock = self._node.outputs.ports["frames"].socket
         for i in range(self.params.good_before):
             await self.emit("frames", {"rgb": np.full((8, 8, 3), i, np.uint8)}, tick=i)
             await asyncio.sleep(0.01)

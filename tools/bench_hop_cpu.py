@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 from sebvs.runtime.node import Node  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
-BURST = 32   # messages per round in the warm condition: at most node.DRAIN_BATCH, one callback
+BURST = 32   # messages per warm round: at most inputs.DRAIN_BATCH, so one callback
 
 
 class _Endpoint:
@@ -72,11 +72,11 @@ async def measure(nbytes: int, count: int) -> dict:
             "hwm": 2 * BURST}}), _Endpoint)
         sender._bind_sockets()
         receiver._bind_sockets()
-        inp = receiver.inputs["payload"]
-        out = sender.outputs["payload"]
+        inp = receiver.inputs.ports["payload"]
+        out = sender.outputs.ports["payload"]
         deadline = time.monotonic() + 10
         while out.subscribers < 1:          # no slow-joiner loss of the first messages
-            sender._drain_subscriptions(out.socket, out)
+            sender.outputs.drain_subscriptions(out)
             if time.monotonic() > deadline:
                 raise RuntimeError("the receiving socket never subscribed")
             await asyncio.sleep(0.01)
@@ -114,7 +114,7 @@ def _warm(sender, receiver, inp, pattern, count) -> dict:
             emit_ns += time.perf_counter_ns() - t0
         time.sleep(0.05)  # ZeroMQ's I/O threads move a round in microseconds
         started = len(receiver.actor.started_ns)
-        receiver._drain(inp)
+        receiver.inputs.drain(inp)
         handled = receiver.actor.started_ns[started:]
         if len(handled) != n:
             raise RuntimeError(f"{len(handled)} of {n} messages handled (stats: {inp.stats})")
@@ -134,7 +134,7 @@ def _paced(sender, receiver, inp, pattern, count, fill: bool) -> dict:
             raise RuntimeError(f"message {i} did not arrive within 5 s")
         handled = len(receiver.actor.started_ns)
         t0 = time.monotonic_ns()
-        receiver._drain(inp)
+        receiver.inputs.drain(inp)
         if len(receiver.actor.started_ns) != handled + 1:
             raise RuntimeError(f"message {i} was not handled (stats: {inp.stats})")
         receive.append(receiver.actor.started_ns[-1] - t0)
