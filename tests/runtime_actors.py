@@ -46,3 +46,15 @@ class GarbageSource(Actor):
         for i in range(self.params.good_after):
             await self.emit("frames", {"rgb": np.full((8, 8, 3), 50 + i, np.uint8)}, tick=50 + i)
             await asyncio.sleep(0.01)
+
+
+class StuckSink(Actor):
+    """Takes one message, then its handler waits forever: the input reads nothing more."""
+    inputs = ("frames",)
+
+    @dataclass
+    class Params:
+        pass
+
+    async def on_frames(self, msg) -> None:
+        await asyncio.Event().wait()

@@ -56,7 +56,8 @@ class _Endpoint:
 
 def _spec(name: str, tmp: str, outputs: dict | None = None, inputs: dict | None = None) -> dict:
     # the keys Node reads of the spec the supervisor writes (supervisor._plan)
-    return {"name": name, "outputs": outputs or {}, "inputs": inputs or {},
+    return {"name": name, "run_id": f"benchcpu{os.getpid()}",
+            "outputs": outputs or {}, "inputs": inputs or {},
             "control": f"ipc://{tmp}/{name}.ctl", "telemetry": f"ipc://{tmp}/{name}.tel"}
 
 

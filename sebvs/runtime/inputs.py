@@ -1,5 +1,12 @@
 """The input side of a Node: SUB sockets read from the event loop, each message decoded
-and handed to the actor's handler."""
+and handed to the actor's handler.
+
+No message can stop an input: one that does not decode is counted in `malformed` (and
+per kind in `malformed_kinds`), one whose handler raises in `errors` (per exception type
+in `error_kinds`); each kind is logged the first time and then rarely, and the input reads
+on. Per-input state is bounded: only the producer's own topic is accepted, and the
+sequence bookkeeping is one number.
+"""
 from __future__ import annotations
 
 import asyncio
@@ -21,6 +28,13 @@ TELEMETRY_MAX_RECORDS = 4096     # per period; beyond it records are counted, no
 HANDLER_WINDOW = 2048            # handler times kept for `stats`
 DRAIN_BATCH = 64                 # messages per reader callback before yielding to the loop
 DRAIN_BUDGET_NS = 5_000_000      # ... or this much handler time, whichever comes first
+# ZeroMQ's MAXMSGSIZE per input: large arrays travel in shared memory, so only tcp inputs
+# carry them inline; a peer sending more is disconnected by ZeroMQ before we allocate
+MAX_MESSAGE_BYTES = 256 << 20
+# a forward jump larger than this is not a loss (a queue holds at most 100,000) but a
+# forged or corrupt seq: counted apart, so `dropped_gap` stays a count of lost messages
+MAX_SEQ_GAP = 1 << 20
+MAX_KINDS = 32                   # distinct exception types counted by name per input
 
 log = logging.getLogger("sebvs.node")
 
@@ -35,6 +49,10 @@ class InputStats:
     malformed: int = 0
     torn: int = 0                 # slot reused while the handler was reading it
     errors: int = 0               # the handler raised
+    seq_resets: int = 0           # seq went back: the producer restarted
+    seq_jumps: int = 0            # seq leapt further than any queue could lose (MAX_SEQ_GAP)
+    malformed_kinds: dict = field(default_factory=dict)   # WireError kind -> count
+    error_kinds: dict = field(default_factory=dict)       # exception type -> count
 
 
 @dataclass
@@ -43,9 +61,10 @@ class _Input:
     handler: Any
     socket: Any
     latest: bool
+    topic: bytes = b""             # the one topic this input reads (its producer's output)
     stats: InputStats = field(default_factory=InputStats)
     busy: asyncio.Task | None = None   # a handler that suspended and runs on as a task
-    last_seq: dict = field(default_factory=dict)
+    last_seq: int | None = None
     handler_ns: collections.deque = field(
         default_factory=lambda: collections.deque(maxlen=HANDLER_WINDOW))
 
@@ -57,22 +76,29 @@ class Inputs:
         self.ports: dict[str, _Input] = {}
         self.reader = RingReader()
         self.stopping: asyncio.Event | None = None   # the actor's, set at connect
+        self.ring_prefix = "sebvs-"                   # narrowed to the run's at connect
         self.records: list = []
         self.records_skipped = 0
-        self.malformed_logged = 0
 
-    def connect(self, specs: dict, ctx: zmq.Context, actor) -> None:
-        """A SUB socket per input of the spec, each bound to the actor's ``on_<input>``."""
+    def connect(self, specs: dict, ctx: zmq.Context, actor, run_id: str) -> None:
+        """A SUB socket per input of the spec, each bound to the actor's ``on_<input>``.
+
+        Rings are opened only under this run's prefix (a relay forwards its producer's
+        ring locations, so any ring of the run may arrive on any input).
+        """
         self.stopping = actor.stopping
+        self.ring_prefix = f"sebvs-{run_id}-"
         for inp, i in specs.items():
             sock = ctx.socket(zmq.SUB)
             sock.setsockopt(zmq.RCVHWM, i["hwm"])
             sock.setsockopt(zmq.LINGER, 0)
             sock.setsockopt(zmq.RECONNECT_IVL, 10)
+            sock.setsockopt(zmq.MAXMSGSIZE, i.get("max_bytes") or MAX_MESSAGE_BYTES)
             sock.setsockopt(zmq.SUBSCRIBE, i["topic"].encode())
             sock.connect(i["endpoint"])
             handler = getattr(actor, f"on_{inp}")
-            self.ports[inp] = _Input(inp, handler, sock, i["queue"] == "latest")
+            self.ports[inp] = _Input(inp, handler, sock, i["queue"] == "latest",
+                                     topic=i["topic"].encode())
 
     def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -111,14 +137,21 @@ class Inputs:
                         break
                     st.received += 1
                     st.dropped_latest += 1
-            msg = self._accept(inp, frames)
+            try:
+                msg = self._accept(inp, frames)
+            except Exception as exc:   # a decoder bug must not end this input: count it
+                self._malformed(inp, WireError(f"{type(exc).__name__}: {exc}", "internal"))
+                continue
             if msg is not None and not self._dispatch(inp, msg):
                 return  # the handler suspended; _resume reschedules us
         asyncio.get_running_loop().call_soon(self.drain, inp)
 
-    def _decode(self, frames) -> Message:
+    def _decode(self, inp: _Input, frames) -> Message:
         if len(frames) < 2:
-            raise WireError(f"{len(frames)} frame(s), expected topic and header")
+            raise WireError(f"{len(frames)} frame(s), expected topic and header", "frames")
+        # SUB matches prefixes: "cam/rgb" would also take "cam/rgb2" or a flood of new ones
+        if frames[0] != inp.topic:
+            raise WireError(f"topic {frames[0][:80]!r}, expected {inp.topic!r}", "topic")
         h = decode_header(frames[1])
         topic = frames[0].decode("utf-8", "replace")
         msg = Message(topic=topic, source=h["src"], output=h["out"], seq=h["seq"],
@@ -128,49 +161,61 @@ class Inputs:
             name, dt, shape, nbytes, loc = array_spec(desc)
             if loc is None:
                 if nxt >= len(frames):
-                    raise WireError(f"array {name!r}: buffer missing (truncated message)")
+                    raise WireError(f"array {name!r}: buffer missing (truncated message)",
+                                    "frames")
                 buf = frames[nxt].buffer
                 nxt += 1
                 if len(buf) != nbytes:
-                    raise WireError(f"array {name!r}: {len(buf)} bytes, header says {nbytes}")
+                    raise WireError(f"array {name!r}: {len(buf)} bytes, header says {nbytes}",
+                                    "frames")
             else:
-                if not (isinstance(loc, list) and len(loc) == 4 and isinstance(loc[0], str)
-                        and isinstance(loc[1], int) and isinstance(loc[2], int)
-                        and isinstance(loc[3], int)):
-                    raise WireError(f"array {name!r}: bad shared-memory location {loc!r}")
+                # only the producer's own rings: a header must not make us open any file
+                if not loc[0].startswith(self.ring_prefix):
+                    raise WireError(f"array {name!r}: ring {loc[0][:80]!r} is not this "
+                                    f"run's ({self.ring_prefix}*)", "ring")
                 try:
                     buf = self.reader.view(loc[0], loc[1], loc[2], nbytes, loc[3])
                 except (OSError, ValueError) as exc:
-                    raise WireError(f"array {name!r}: {exc}") from None
+                    raise WireError(f"array {name!r}: {exc}", "ring") from None
                 if buf is None:
                     return None  # overwritten before we got to it
                 msg.shm_locs[name] = loc
             msg.arrays[name] = np.frombuffer(buf, dt).reshape(shape) if nbytes else \
                 np.empty(shape, dt)
         if nxt != len(frames):
-            raise WireError(f"{len(frames) - nxt} unexpected extra frame(s)")
+            raise WireError(f"{len(frames) - nxt} unexpected extra frame(s)", "frames")
         return msg
 
     def _accept(self, inp: _Input, frames) -> Message | None:
         st = inp.stats
         try:
-            msg = self._decode(frames)
+            msg = self._decode(inp, frames)
         except WireError as exc:
-            st.malformed += 1
-            self.malformed_logged += 1
-            if self.malformed_logged <= 10 or self.malformed_logged % 1000 == 0:
-                log.warning("input %r: malformed message dropped (%d so far): %s",
-                            inp.name, st.malformed, exc)
+            self._malformed(inp, exc)
             return None
         if msg is None:
             st.dropped_overwritten += 1
             return None
-        last = inp.last_seq.get(msg.topic)
-        if last is not None and msg.seq > last + 1:
-            st.dropped_gap += msg.seq - last - 1
-        inp.last_seq[msg.topic] = msg.seq
+        last = inp.last_seq
+        if last is not None:
+            gap = msg.seq - last - 1
+            if gap < 0:
+                st.seq_resets += 1
+            elif gap > MAX_SEQ_GAP:
+                st.seq_jumps += 1
+            else:
+                st.dropped_gap += gap
+        inp.last_seq = msg.seq
         msg.input = inp.name
         return msg
+
+    def _malformed(self, inp: _Input, exc: WireError) -> None:
+        st = inp.stats
+        st.malformed += 1
+        n = _count_kind(st.malformed_kinds, exc.kind)
+        if _worth_logging(n):
+            log.warning("input %r: malformed message dropped (%s, %d of this kind, %d in "
+                        "all): %s", inp.name, exc.kind, n, st.malformed, exc)
 
     def _dispatch(self, inp: _Input, msg: Message) -> bool:
         """Run the handler eagerly; False if it suspended and continues as a task."""
@@ -202,8 +247,11 @@ class Inputs:
         st.handled += 1
         if exc is not None:
             st.errors += 1
-            log.error("handler on_%s failed on %s seq %d", inp.name, msg.topic, msg.seq,
-                      exc_info=exc)
+            n = _count_kind(st.error_kinds, type(exc).__name__)
+            if _worth_logging(n):
+                log.error("handler on_%s failed on %s seq %d (%s, %d of this kind, %d in "
+                          "all)", inp.name, msg.topic, msg.seq, type(exc).__name__, n,
+                          st.errors, exc_info=exc if n == 1 else None)
         inp.handler_ns.append(end - start)
         if msg.shm_locs and not all(self.reader.still_valid(l[0], l[1], l[3])
                                     for l in msg.shm_locs.values()):
@@ -222,7 +270,7 @@ class Inputs:
     def stats(self) -> dict:
         inputs = {}
         for name, inp in self.ports.items():
-            d = dict(vars(inp.stats))
+            d = {k: dict(v) if isinstance(v, dict) else v for k, v in vars(inp.stats).items()}
             d["handler_us"] = summarize(inp.handler_ns, 1e-3)
             inputs[name] = d
         return inputs
@@ -247,6 +295,20 @@ class Inputs:
         self.reader.close()
         for inp in self.ports.values():
             inp.socket.close(linger=0)
+
+
+def _count_kind(counts: dict, kind: str) -> int:
+    """Count one more of ``kind``; past MAX_KINDS distinct kinds the rest share "other"."""
+    if kind not in counts and len(counts) >= MAX_KINDS:
+        kind = "other"
+    counts[kind] = n = counts.get(kind, 0) + 1
+    return n
+
+
+def _worth_logging(n: int) -> bool:
+    """The first three of a kind, then the 10th, 100th, 1000th...: a flood stays a trickle."""
+    digits = str(n)
+    return n <= 3 or digits == "1" + "0" * (len(digits) - 1)
 
 
 def _recv_message(sock) -> list:

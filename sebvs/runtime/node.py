@@ -27,6 +27,8 @@ from .params import params_to_dict
 __all__ = ["Node", "InputStats"]
 
 TELEMETRY_PERIOD_S = 0.1
+MAX_CONTROL_BYTES = 1 << 20     # a control request is a few keys; ZeroMQ drops a bigger one
+MAX_ERROR_CHARS = 500           # an error reply names the problem, it does not echo the input
 
 log = logging.getLogger("sebvs.node")
 
@@ -54,9 +56,10 @@ class Node:
     def _bind_sockets(self) -> None:
         spec = self.spec
         self.outputs.bind(spec["outputs"], self.sync_ctx)
-        self.inputs.connect(spec["inputs"], self.sync_ctx, self.actor)
+        self.inputs.connect(spec["inputs"], self.sync_ctx, self.actor, spec["run_id"])
         self.control = self.ctx.socket(zmq.ROUTER)
         self.control.setsockopt(zmq.LINGER, 0)
+        self.control.setsockopt(zmq.MAXMSGSIZE, MAX_CONTROL_BYTES)
         self.control.bind(spec["control"])
         self.telemetry_socket = self.sync_ctx.socket(zmq.XPUB)
         self.telemetry_socket.setsockopt(zmq.XPUB_VERBOSE, 1)
@@ -106,7 +109,7 @@ class Node:
             if not isinstance(req.get("key"), str) or "value" not in req:
                 raise ValueError("'set' needs 'key' and 'value'")
             result = await self.actor.control(req["key"], req["value"])
-            self.event("set", {"key": req["key"], "value": req["value"], "result": result})
+            self.event("set", {"key": req["key"][:100], "result": result})
             return result
         raise ValueError(f"unknown command {cmd!r} (get, set, stats, stop, ping)")
 
@@ -118,7 +121,7 @@ class Node:
                 req = msgpack.unpackb(payload, raw=False)
                 reply = {"ok": True, "result": await self._handle_control(req)}
             except Exception as exc:  # a bad request is answered, never fatal
-                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+                reply = {"ok": False, "error": _cut(f"{type(exc).__name__}: {exc}")}
             try:
                 body = msgpack.packb(reply, use_bin_type=True, default=_to_builtin)
             except Exception as exc:
@@ -229,6 +232,12 @@ class Node:
         self.inputs.close()
         self.telemetry_socket.close(linger=0)
         self.ctx.destroy(linger=0)
+
+
+def _cut(text: str) -> str:
+    if len(text) <= MAX_ERROR_CHARS:
+        return text
+    return f"{text[:MAX_ERROR_CHARS]}... ({len(text)} chars)"
 
 
 def _to_builtin(obj):

@@ -83,7 +83,8 @@ class ProfileCollector:
             if not last:
                 return {}
             return {k: last[k] - first.get(k, 0) for k in last
-                    if k.startswith("dropped") or k in ("malformed", "torn", "errors")}
+                    if k.startswith("dropped") or k in ("malformed", "torn", "errors", "seq_resets",
+                                                           "seq_jumps")}
 
         return {
             "run": self.info.get("name"), "run_id": self.info.get("run_id"),

@@ -15,11 +15,20 @@ every process that attaches registers the segment with its resource tracker, whi
 unlinks it (and warns) when any consumer exits. Ownership here is simple and explicit:
 the producer creates, the supervisor removes everything of the run by name prefix, also
 after a crash.
+
+/dev/shm is shared by every local user, and ring names arrive in message headers, so
+neither side trusts a name: the producer creates its files exclusively (O_EXCL) under a
+name with a random part nobody can create ahead of it, and a reader opens only a plain
+file of its own user, without following links or blocking on a FIFO, whose header
+describes exactly the file's size.
 """
 from __future__ import annotations
 
 import mmap
 import os
+import re
+import secrets
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +37,8 @@ SHM_DIR = Path("/dev/shm")
 MAGIC = 0x53454256_53524E47  # "SEBVSRNG"
 PAGE = 4096
 ALIGN = 64
+MAX_SLOTS = (PAGE - 24) // 8      # generation counters that fit the header page
+RING_NAME = re.compile(r"sebvs-[A-Za-z0-9_.-]{1,200}")
 
 
 def _round_up(n: int, to: int) -> int:
@@ -61,13 +72,20 @@ class RingWriter:
     def _create(self, slot_bytes: int) -> None:
         self.close(unlink=True)
         self.generation_count += 1
-        self.name = f"{self.prefix}-{os.getpid()}-{self.generation_count}"
+        # pid and generation say whose it is (the supervisor removes a dead producer's by
+        # them); the random part makes the name impossible to create ahead of us
+        self.name = f"{self.prefix}-{os.getpid()}-{self.generation_count}-{secrets.token_hex(4)}"
         self.slot_bytes = _round_up(max(slot_bytes, PAGE), PAGE)
         size = PAGE + self.n_slots * self.slot_bytes
-        header_bytes = 24 + 8 * self.n_slots
-        if header_bytes > PAGE:
-            raise ValueError(f"too many slots ({self.n_slots}) for the ring header page")
-        fd = os.open(SHM_DIR / self.name, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        if not 1 <= self.n_slots <= MAX_SLOTS:
+            raise ValueError(f"{self.n_slots} slots: a ring has 1..{MAX_SLOTS} "
+                             "(the generation counters fill one header page)")
+        try:
+            fd = os.open(SHM_DIR / self.name,
+                         os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+        except FileExistsError:
+            raise FileExistsError(f"ring {SHM_DIR / self.name} already exists: another "
+                                  "process created it first; refusing to share it") from None
         try:
             os.ftruncate(fd, size)
             self._mm = mmap.mmap(fd, size)
@@ -122,18 +140,27 @@ class RingReader:
         entry = self._maps.get(name)
         if entry is not None:
             return entry
-        if "/" in name or not name.startswith("sebvs-"):
-            raise ValueError(f"refusing ring name {name!r}")
-        fd = os.open(SHM_DIR / name, os.O_RDONLY)
+        if not RING_NAME.fullmatch(name):
+            raise ValueError(f"refusing ring name {name[:80]!r}")
+        # O_NONBLOCK: opening a FIFO planted under a ring's name would otherwise hang us
+        fd = os.open(SHM_DIR / name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
         try:
-            size = os.fstat(fd).st_size
-            mm = mmap.mmap(fd, size, prot=mmap.PROT_READ)
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise ValueError(f"ring {name!r} is not a regular file")
+            if st.st_uid != os.geteuid():
+                raise ValueError(f"ring {name!r} belongs to uid {st.st_uid}, not us")
+            if st.st_size < PAGE:
+                raise ValueError(f"ring {name!r} is {st.st_size} bytes, smaller than its header")
+            mm = mmap.mmap(fd, st.st_size, prot=mmap.PROT_READ)
         finally:
             os.close(fd)
-        magic, n_slots, slot_bytes = np.ndarray((3,), np.int64, buffer=mm)
-        if magic != MAGIC or PAGE + n_slots * slot_bytes > size:
+        magic, n_slots, slot_bytes = (int(v) for v in np.ndarray((3,), np.int64, buffer=mm))
+        if (magic != MAGIC or not 1 <= n_slots <= MAX_SLOTS or slot_bytes < PAGE
+                or slot_bytes % PAGE or PAGE + n_slots * slot_bytes != st.st_size):
             mm.close()
-            raise ValueError(f"ring {name!r} has a bad header")
+            raise ValueError(f"ring {name!r} has a bad header ({n_slots} slots of "
+                             f"{slot_bytes} B in a {st.st_size} B file)")
         gen = _generations(mm, int(n_slots))
         if len(self._maps) >= self.max_maps:  # producers that grew or restarted leave old rings
             _release(self._maps.pop(next(iter(self._maps))))

@@ -29,8 +29,10 @@ from typing import Callable
 import msgpack
 import zmq
 
+from .params import short_repr
 from .shm import remove_run_rings
-from .topology import Topology, load_topology
+from .stalls import STALL_PERIOD_S, StallWatch, query_all
+from .topology import Topology, TopologyError, load_topology
 
 STOP_GRACE_S = 1.0      # after `stop`, before SIGTERM
 TERM_GRACE_S = 0.5      # after SIGTERM, before SIGKILL
@@ -45,6 +47,20 @@ class RunFailed(RuntimeError):
 
 def runs_root(runs_dir: str | Path | None = None) -> Path:
     return Path(runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs"))
+
+
+def run_directory(root: Path, name: str, suffix: str) -> Path:
+    """``root/<name>-<suffix>``, refused unless it is a direct child of ``root``.
+
+    The topology loader already restricts names; a Topology built in code is not
+    loaded, so the check is here too.
+    """
+    root = root.resolve()
+    rundir = (root / f"{name}-{suffix}").resolve()
+    if rundir.parent != root:
+        raise TopologyError(f"run name {short_repr(name)} would put the run directory "
+                            f"outside {root}")
+    return rundir
 
 
 def socket_root() -> Path:
@@ -89,7 +105,7 @@ class Supervisor:
         self.echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
         self.run_id = secrets.token_hex(4)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        self.rundir = (runs_root(runs_dir) / f"{topo.name}-{stamp}-{self.run_id}").resolve()
+        self.rundir = run_directory(runs_root(runs_dir), topo.name, f"{stamp}-{self.run_id}")
         self.sockdir = socket_root() / f"sebvs-{self.run_id}"
         self.log_level = log_level
         self.ctx = zmq.Context()
@@ -188,7 +204,26 @@ class Supervisor:
         for p in self.procs.values():
             self._command(p.name, {"cmd": "start"})
         self.status = "running"
+        self.stalls = StallWatch({(a.name, i.name): (i.producer, i.output)
+                                  for a in self.topo.active.values()
+                                  for i in a.inputs.values()})
+        self._next_stall_check = time.monotonic() + STALL_PERIOD_S
         self._write_info()
+
+    def _check_stalls(self) -> None:
+        """Report inputs that receive nothing while their producers send (stalls.py)."""
+        if time.monotonic() < self._next_stall_check or not self.stalls.producers:
+            return
+        self._next_stall_check = time.monotonic() + STALL_PERIOD_S
+        replies = query_all(self.ctx, {n: s["control"] for n, s in self.specs.items()},
+                            {"cmd": "stats"})
+        found = self.stalls.update({n: r["result"] for n, r in replies.items()
+                                    if isinstance(r, dict) and r.get("ok")})
+        for text in found:
+            self.echo(f"sebvs: {text}")
+        if found:
+            self.info["stalled"] = sorted(f"{a}.{i}" for a, i in self.stalls.stalled)
+            self._write_info()
 
     def _spawn(self, p: _Proc) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -285,6 +320,7 @@ class Supervisor:
             for name in self._poll_ready(0) if any(not p.ready for p in self.procs.values()) \
                     else []:
                 self._command(name, {"cmd": "start"})  # a restarted actor joins the clock
+            self._check_stalls()
             if on_poll is not None:
                 on_poll(POLL_S)
             else:

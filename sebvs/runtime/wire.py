@@ -18,6 +18,10 @@
 
 Arrays never travel inside msgpack: inline arrays are raw buffers sent zero-copy, large
 ones sit in shared memory and only their descriptor crosses the socket.
+
+The decoder's contract: whatever bytes arrive, `decode_header` and `array_spec` either
+return validated values or raise `WireError`, whose `kind` names the part that was wrong
+("header", "field", "stamps", "dtype", "shape", ...). Receivers count errors per kind.
 """
 from __future__ import annotations
 
@@ -32,10 +36,18 @@ MAX_HEADER_BYTES = 1 << 20
 MAX_ARRAY_BYTES = 1 << 31      # a header claiming more is malformed, not an allocation
 MAX_ARRAYS = 64
 MAX_NDIM = 8
+MAX_HOPS = 64                  # stamps per message: a longer chain is a loop or a forgery
+MAX_SEQ = (1 << 63) - 1        # seq is a uint63: the producer's count of messages sent
+MAX_DTYPE_FIELDS = 64
+MAX_ITEMSIZE = 1 << 16
 
 
 class WireError(ValueError):
-    """A message that cannot be decoded; the receiver counts it and goes on."""
+    """A message that cannot be decoded; the receiver counts it (per ``kind``) and goes on."""
+
+    def __init__(self, message: str, kind: str = "malformed"):
+        super().__init__(message)
+        self.kind = kind
 
 
 @dataclass
@@ -87,14 +99,20 @@ def dtype_from_wire(desc: Any) -> np.dtype:
             dt = np.dtype(desc)
         else:
             fields, itemsize = desc
+            if len(fields) > MAX_DTYPE_FIELDS:
+                raise ValueError(f"{len(fields)} fields (max {MAX_DTYPE_FIELDS})")
             dt = np.dtype({"names": [f[0] for f in fields],
                            "formats": [f[1] for f in fields],
                            "offsets": [f[2] for f in fields],
                            "itemsize": itemsize})
-    except (TypeError, ValueError) as exc:
-        raise WireError(f"bad dtype descriptor {desc!r}: {exc}") from None
+    except Exception as exc:   # numpy raises many types on odd descriptors; all mean "bad"
+        raise WireError(f"bad dtype descriptor {_short(desc)}: {type(exc).__name__}: "
+                        f"{_short(exc)}", "dtype") from None
     if dt.hasobject:
-        raise WireError(f"object dtype {desc!r} refused")
+        raise WireError(f"object dtype {_short(desc)} refused", "dtype")
+    if dt.itemsize > MAX_ITEMSIZE or dt.itemsize == 0:
+        raise WireError(f"dtype {_short(desc)} has itemsize {dt.itemsize} "
+                        f"(1..{MAX_ITEMSIZE})", "dtype")
     if isinstance(desc, str) and len(_DTYPES) < 256:
         _DTYPES[desc] = dt
     return dt
@@ -110,42 +128,76 @@ def encode_header(*, source: str, output: str, seq: int, t_sim: float | None,
 def decode_header(raw) -> dict:
     """Parse and validate a header; raises WireError naming what is wrong."""
     if len(raw) > MAX_HEADER_BYTES:
-        raise WireError(f"header of {len(raw)} bytes exceeds {MAX_HEADER_BYTES}")
+        raise WireError(f"header of {len(raw)} bytes exceeds {MAX_HEADER_BYTES}", "header")
     try:
         h = msgpack.unpackb(raw, raw=False, strict_map_key=True,
                             max_array_len=1 << 16, max_map_len=1 << 12)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
-        raise WireError(f"header is not msgpack: {type(exc).__name__}: {exc}") from None
+        raise WireError(f"header is not msgpack: {type(exc).__name__}: {_short(exc)}",
+                        "header") from None
     if not isinstance(h, dict):
-        raise WireError("header is not a map")
+        raise WireError("header is not a map", "header")
     if h.get("v") != SCHEMA_VERSION:
-        raise WireError(f"schema version {h.get('v')!r}, expected {SCHEMA_VERSION}")
+        raise WireError(f"schema version {_short(h.get('v'))}, expected {SCHEMA_VERSION}",
+                        "version")
     for key, types in (("src", str), ("out", str), ("seq", int), ("st", list), ("a", list),
                        ("m", dict)):
-        if not isinstance(h.get(key), types):
-            raise WireError(f"header field {key!r} missing or of the wrong type")
-    if h.get("ts") is not None and not isinstance(h["ts"], (int, float)):
-        raise WireError("header field 'ts' is not a number")
-    if h.get("tick") is not None and not isinstance(h["tick"], int):
-        raise WireError("header field 'tick' is not an integer")
+        if not isinstance(h.get(key), types) or isinstance(h[key], bool):
+            raise WireError(f"header field {key!r} missing or of the wrong type", "field")
+    # present even when None: a header that leaves them out was not written by encode_header
+    for key, types, what in (("ts", (int, float), "a number"), ("tick", int, "an integer")):
+        if key not in h:
+            raise WireError(f"header field {key!r} missing", "field")
+        if h[key] is not None and (not isinstance(h[key], types) or isinstance(h[key], bool)):
+            raise WireError(f"header field {key!r} is not {what} or None", "field")
+    if not 0 <= h["seq"] <= MAX_SEQ:
+        raise WireError(f"header field 'seq' {h['seq']} is outside 0..2**63-1", "field")
+    _check_stamps(h["st"])
     if len(h["a"]) > MAX_ARRAYS:
-        raise WireError(f"{len(h['a'])} arrays in one message (max {MAX_ARRAYS})")
+        raise WireError(f"{len(h['a'])} arrays in one message (max {MAX_ARRAYS})", "shape")
     return h
+
+
+def _check_stamps(stamps: list) -> None:
+    """Each hop [actor, recv_ns, send_ns]: what the profiler and every relay reads."""
+    if len(stamps) > MAX_HOPS:
+        raise WireError(f"{len(stamps)} stamps (max {MAX_HOPS})", "stamps")
+    for st in stamps:
+        if not (isinstance(st, list) and len(st) == 3 and isinstance(st[0], str)
+                and all(isinstance(t, int) and not isinstance(t, bool) and 0 <= t <= MAX_SEQ
+                        for t in st[1:])):
+            raise WireError(f"bad stamp {_short(st)} (expected [actor, recv_ns, send_ns])",
+                            "stamps")
 
 
 def array_spec(desc) -> tuple[str, np.dtype, tuple[int, ...], int, Any]:
     """Validate one array descriptor: (name, dtype, shape, nbytes, loc)."""
     if not (isinstance(desc, list) and len(desc) == 4 and isinstance(desc[0], str)):
-        raise WireError(f"bad array descriptor {desc!r}")
+        raise WireError(f"bad array descriptor {_short(desc)}", "shape")
     name, dt_desc, shape, loc = desc
     dt = dtype_from_wire(dt_desc)
     if not isinstance(shape, list) or len(shape) > MAX_NDIM:
-        raise WireError(f"array {name!r}: bad shape {shape!r}")
-    nbytes = dt.itemsize
+        raise WireError(f"array {_short(name)}: bad shape {_short(shape)}", "shape")
+    # every dimension bounded too: numpy refuses an empty array with a 2**64 dimension
+    elements = 1
     for n in shape:
-        if not isinstance(n, int) or n < 0:
-            raise WireError(f"array {name!r}: bad shape {shape!r}")
-        nbytes *= n
+        if not isinstance(n, int) or isinstance(n, bool) or not 0 <= n <= MAX_ARRAY_BYTES:
+            raise WireError(f"array {_short(name)}: bad shape {_short(shape)}", "shape")
+        elements *= n
+    nbytes = elements * dt.itemsize
     if nbytes > MAX_ARRAY_BYTES:
-        raise WireError(f"array {name!r} claims {nbytes} bytes (max {MAX_ARRAY_BYTES})")
+        raise WireError(f"array {_short(name)} claims {nbytes} bytes "
+                        f"(max {MAX_ARRAY_BYTES})", "shape")
+    if loc is not None and not (isinstance(loc, list) and len(loc) == 4
+                                and isinstance(loc[0], str)
+                                and all(isinstance(v, int) and not isinstance(v, bool)
+                                        and v >= 0 for v in loc[1:])):
+        raise WireError(f"array {_short(name)}: bad shared-memory location {_short(loc)}",
+                        "ring")
     return name, dt, tuple(shape), nbytes, loc
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    """repr of a value from the wire, cut: an error message must not echo a 50 MB field."""
+    text = str(value) if isinstance(value, BaseException) else repr(value)
+    return text if len(text) <= limit else text[:limit] + f"... ({len(text)} chars)"

@@ -1,0 +1,271 @@
+"""Bad input on the data path: every message either decodes or is counted by kind, and the
+input reads on; ring names from headers open nothing but this run's own plain files."""
+import asyncio
+import os
+import tempfile
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from sebvs.runtime import shm
+from sebvs.runtime.inputs import MAX_SEQ_GAP, Inputs
+from sebvs.runtime.shm import RingReader, RingWriter
+from sebvs.runtime.wire import SCHEMA_VERSION, WireError, array_spec, decode_header, \
+    encode_header
+
+RUN = f"hard{os.getpid()}"
+
+
+def header(**kw) -> bytes:
+    base = dict(source="src", output="frames", seq=0, t_sim=0.0, tick=0,
+                stamps=[["src", 0, 1]], arrays=[], meta={})
+    base.update(kw)
+    return encode_header(**base)
+
+
+def raw_header(**fields) -> bytes:
+    h = {"v": SCHEMA_VERSION, "src": "src", "out": "frames", "seq": 0, "ts": 0.0,
+         "tick": 0, "st": [], "a": [], "m": {}}
+    h.update(fields)
+    return msgpack.packb({k: v for k, v in h.items() if v is not ...}, use_bin_type=True)
+
+
+# --------------------------------------------------------------------------- decoder
+@pytest.mark.parametrize("raw, kind", [
+    (raw_header(ts=...), "field"),                  # a header without its timestamp
+    (raw_header(tick=...), "field"),
+    (raw_header(seq=-1), "field"),
+    (raw_header(seq=2 ** 64 - 1), "field"),
+    (raw_header(seq=True), "field"),
+    (raw_header(st=[["a"]]), "stamps"),
+    (raw_header(st=[[1, 2, 3]]), "stamps"),
+    (raw_header(st=[["a", 0, 1]] * 65), "stamps"),
+    (raw_header(ts="now"), "field"),
+])
+def test_headers_that_decode_as_msgpack_but_are_not_ours(raw, kind):
+    with pytest.raises(WireError) as err:
+        decode_header(raw)
+    assert err.value.kind == kind
+
+
+@pytest.mark.parametrize("desc, kind", [
+    (["a", [[["x"]], 4], [1], None], "dtype"),          # a field without its format
+    (["a", [[], 0], [1], None], "dtype"),
+    (["a", [[["x", "<f4", 0]] * 100, 400], [1], None], "dtype"),
+    (["a", {"x": 1}, [1], None], "dtype"),
+    (["a", "<f4", [2 ** 64, 0], None], "shape"),         # empty, but numpy refuses it
+    (["a", "<f4", [True], None], "shape"),
+    (["a", "<f4", [1], ["sebvs-x", -1, 0, 0]], "ring"),
+    (["a", "<f4", [1], ["sebvs-x", 0, 0]], "ring"),
+    ("not a list", "shape"),
+])
+def test_array_descriptors_fail_as_wire_errors(desc, kind):
+    with pytest.raises(WireError) as err:
+        array_spec(desc)
+    assert err.value.kind == kind
+
+
+def test_error_text_does_not_echo_a_huge_value():
+    with pytest.raises(WireError) as err:
+        array_spec(["a", "x" * 100_000, [1], None])
+    assert len(str(err.value)) < 400
+
+
+# --------------------------------------------------------------------------- inputs
+class _Sink:
+    """The actor side an Inputs needs: a stopping event and one handler."""
+
+    def __init__(self, fail_on: set[int]):
+        self.stopping = asyncio.Event()
+        self.seen: list[int] = []
+        self.fail_on = fail_on
+
+    async def on_frames(self, msg):
+        if msg.seq in self.fail_on:
+            raise RuntimeError(f"handler bug on {msg.seq}")
+        self.seen.append(msg.seq)
+
+
+def _fifo_in_run() -> Path:
+    path = shm.SHM_DIR / f"sebvs-{RUN}-planted-fifo"
+    path.unlink(missing_ok=True)
+    os.mkfifo(path)
+    return path
+
+
+async def _feed(messages: list[list[bytes]], fail_on: set[int] = frozenset()):
+    with tempfile.TemporaryDirectory(prefix="sebvs-hard-") as tmp:
+        endpoint = f"ipc://{tmp}/frames"
+        ctx = zmq.Context()
+        pub = ctx.socket(zmq.XPUB)
+        pub.bind(endpoint)
+        actor = _Sink(fail_on)
+        inputs = Inputs()
+        inputs.connect({"frames": {"endpoint": endpoint, "topic": "src/frames",
+                                   "queue": 10_000, "hwm": 10_000}}, ctx, actor, RUN)
+        assert pub.poll(5000), "the input never subscribed"
+        pub.recv()
+        inputs.start()
+        for frames in messages:
+            pub.send_multipart(frames)
+        deadline = asyncio.get_running_loop().time() + 10
+        inp = inputs.ports["frames"]
+        while inp.stats.received < len(messages):
+            assert asyncio.get_running_loop().time() < deadline, vars(inp.stats)
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.05)
+        stats = inputs.stats()["frames"]
+        inputs.stop_reading()
+        inputs.close()
+        pub.close(linger=0)
+        ctx.term()
+        return actor, stats
+
+
+def test_an_input_survives_every_kind_of_bad_message_and_reads_on():
+    fifo = _fifo_in_run()
+    topic = b"src/frames"
+    f4 = np.zeros(2, np.float32).tobytes()
+    bad = [
+        [topic],                                                   # no header
+        [topic, b"\xc1\xc1"],                                      # not msgpack
+        [topic, raw_header(ts=...)],                               # KeyError before
+        [topic, raw_header(st=[["x"]])],
+        [topic, raw_header(a=[["a", [[["x"]], 4], [1], None]])],   # IndexError before
+        [topic, raw_header(a=[["a", "<f4", [2 ** 64 - 1, 0], None]])],
+        [topic, raw_header(a=[["a", "<f4", [2], None]])],          # buffer missing
+        [topic, raw_header(a=[["a", "<f4", [3], None]]), f4],      # wrong length
+        [topic, raw_header(a=[["a", "<f4", [2], ["sebvs-other-run-x", 0, 0, 2]]])],
+        [topic, raw_header(a=[["a", "<f4", [2], [fifo.name, 0, 0, 2]]])],   # must not hang
+        [b"src/frames2", header(seq=0)],                           # a prefix-matched topic
+        [topic, header(seq=0), b"extra"],
+    ]
+    good = [[topic, header(seq=k)] for k in range(5)]
+    forged = [[topic, header(seq=2 ** 63 - 1)], [topic, header(seq=0)],
+              [topic, header(seq=1, arrays=[["a", "<f4", [2], None]]), f4]]
+    try:
+        actor, stats = asyncio.run(_feed(bad + good + forged, fail_on={3}))
+    finally:
+        fifo.unlink(missing_ok=True)
+    assert stats["received"] == len(bad) + len(good) + len(forged)
+    assert stats["malformed"] == len(bad)
+    assert set(stats["malformed_kinds"]) >= {"frames", "header", "field", "stamps", "dtype",
+                                             "shape", "ring", "topic"}
+    assert stats["errors"] == 1 and stats["error_kinds"] == {"RuntimeError": 1}
+    assert actor.seen == [0, 1, 2, 4, 2 ** 63 - 1, 0, 1]   # reads on after each one
+    # a forged seq is a jump, going back is a producer restart: neither is a loss
+    assert stats["seq_jumps"] == 1 and stats["seq_resets"] == 1
+    assert stats["dropped_gap"] == 0
+
+
+def test_seq_gaps_within_reason_count_as_losses():
+    topic = b"src/frames"
+    msgs = [[topic, header(seq=s)] for s in (0, 5, 5 + MAX_SEQ_GAP + 2)]
+    _, stats = asyncio.run(_feed(msgs))
+    assert stats["dropped_gap"] == 4 and stats["seq_jumps"] == 1
+
+
+# --------------------------------------------------------------------------- rings
+def test_ring_names_carry_a_random_part_and_squatting_is_refused(monkeypatch):
+    a = RingWriter(f"sebvs-{RUN}-cam-rgb", 4, 4096)
+    b = RingWriter(f"sebvs-{RUN}-cam-rgb", 4, 4096)
+    try:
+        assert a.name != b.name and a.name.startswith(f"sebvs-{RUN}-cam-rgb-{os.getpid()}-1-")
+    finally:
+        a.close()
+        b.close()
+    monkeypatch.setattr(shm.secrets, "token_hex", lambda n: "0" * (2 * n))
+    squat = shm.SHM_DIR / f"sebvs-{RUN}-cam-rgb-{os.getpid()}-1-00000000"
+    squat.write_bytes(b"")
+    try:
+        with pytest.raises(FileExistsError, match="refusing to share"):
+            RingWriter(f"sebvs-{RUN}-cam-rgb", 4, 4096)
+    finally:
+        squat.unlink()
+
+
+@pytest.mark.parametrize("plant", ["fifo", "symlink", "short", "bad_header", "dir"])
+def test_reader_opens_only_plain_ring_files(plant):
+    name = f"sebvs-{RUN}-planted-{plant}"
+    path = shm.SHM_DIR / name
+    real = RingWriter(f"sebvs-{RUN}-real", 2, 4096)
+    real.reserve(8)
+    try:
+        if plant == "fifo":
+            os.mkfifo(path)
+        elif plant == "symlink":
+            path.symlink_to(shm.SHM_DIR / real.name)
+        elif plant == "short":
+            path.write_bytes(b"\0" * 100)
+        elif plant == "bad_header":
+            data = bytearray((shm.SHM_DIR / real.name).read_bytes())
+            data[8:16] = (10 ** 6).to_bytes(8, "little")     # claims a million slots
+            path.write_bytes(bytes(data))
+        else:
+            path.mkdir()
+        with pytest.raises((OSError, ValueError)):
+            RingReader().view(name, 0, 0, 8, 0)
+    finally:
+        real.close()
+        if path.is_dir() and not path.is_symlink():
+            path.rmdir()
+        else:
+            path.unlink(missing_ok=True)
+
+
+@pytest.mark.parametrize("name", ["sebvs-../../etc/passwd", "other-name", "sebvs-a b",
+                                  "sebvs-" + "x" * 300])
+def test_reader_refuses_names_outside_the_pattern(name):
+    with pytest.raises(ValueError, match="refusing"):
+        RingReader().view(name, 0, 0, 8, 0)
+
+
+# --------------------------------------------------------------------------- stalls
+def test_stall_watch_reports_once_and_again_after_recovery():
+    from sebvs.runtime.stalls import StallWatch
+    w = StallWatch({("sink", "frames"): ("source", "frames")}, rounds=2)
+
+    def rnd(sent, received):
+        return w.update({"source": {"outputs": {"frames": {"sent": sent}}},
+                         "sink": {"inputs": {"frames": {"received": received}}}})
+
+    assert rnd(10, 10) == [] and rnd(20, 20) == []       # flowing
+    assert rnd(30, 20) == []                             # one quiet round: not yet
+    (text,) = rnd(40, 20)
+    assert "sink.frames is stalled" in text and "source/frames sent 40" in text
+    assert rnd(50, 20) == []                             # reported once
+    assert rnd(50, 20) == []                             # producer idle too: no stall
+    assert rnd(60, 30) == [] and not w.stalled          # recovered
+    assert w.update({"sink": {}}) == []                  # a side that did not answer
+
+
+def test_supervisor_reports_an_input_that_stops_receiving(tmp_path, monkeypatch):
+    from sebvs.runtime import supervisor
+    from sebvs.runtime.topology import load_topology
+    monkeypatch.setattr(supervisor, "STALL_PERIOD_S", 0.3)
+    topo = tmp_path / "stuck.toml"
+    topo.write_text("""
+[topology]
+name = "stuck"
+[actors.source]
+run = "actors.synthetic:PatternSource"
+width = 16
+height = 16
+rate_hz = 200.0
+[actors.sink]
+run = "tests.runtime_actors:StuckSink"
+inputs = { frames = "source/frames" }
+""")
+    messages = []
+    sup = supervisor.Supervisor(load_topology(topo), runs_dir=tmp_path, echo=messages.append)
+    sup.start()
+    try:
+        sup.wait(4.0)
+    finally:
+        sup.stop()
+    stalled = [m for m in messages if "stalled" in m]
+    assert len(stalled) == 1, messages
+    assert "input sink.frames is stalled: source/frames sent" in stalled[0]
