@@ -9,10 +9,12 @@ Output  frames  {"frame": [C, H, W]} at the RGB (frame) resolution for the windo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 from sebvs.dvs.accumulator import EventAccumulator, EventGeometry
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
+
+OutSide = Annotated[int, Range(ge=0, le=4096)]   # px; 0: the emulator's frame size
 
 
 class Accumulator(Actor):
@@ -22,11 +24,11 @@ class Accumulator(Actor):
     @dataclass
     class Params:
         representation: Literal["counts", "histogram", "voxel"] = "counts"
-        window_s: float = 0.1        # one control period at 10 Hz
-        bins: int = 5
-        clip: int = 255
-        out_width: int = 0           # 0: the frame size the emulator reports
-        out_height: int = 0
+        window_s: Annotated[float, Range(gt=0, le=3600)] = 0.1   # one control period at 10 Hz
+        bins: Annotated[int, Range(ge=1, le=256)] = 5
+        clip: Annotated[int, Range(ge=1, le=255)] = 255      # counts are uint8
+        out_width: OutSide = 0           # 0: the frame size the emulator reports
+        out_height: OutSide = 0
 
     async def setup(self) -> None:
         self.acc = None

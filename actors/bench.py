@@ -5,10 +5,11 @@ import asyncio
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 
 
 class PayloadSource(Actor):
@@ -21,10 +22,10 @@ class PayloadSource(Actor):
 
     @dataclass
     class Params:
-        nbytes: int = 1_228_800
-        count: int = 2000
-        interval_ms: float = 1.0
-        warmup: int = 50
+        nbytes: Annotated[int, Range(ge=1, le=1 << 30)] = 1_228_800
+        count: Annotated[int, Range(ge=0)] = 2000
+        interval_ms: Annotated[float, Range(ge=0, le=60_000)] = 1.0
+        warmup: Annotated[int, Range(ge=0)] = 50
 
     async def run(self) -> None:
         p = self.params

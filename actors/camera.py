@@ -20,10 +20,11 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
 from sebvs.sim.render import FrameRenderer
 
@@ -54,9 +55,10 @@ class Camera(Actor):
     @dataclass
     class Params:
         camera: str = ""           # camera name in the MJCF; "" = the scene's first
-        rgb_hz: float = 0.0        # 0: one RGB frame per control tick
-        dvs_hz: float = 0.0        # 0: luma at every state sample (the sim's render_hz)
-        luma_scale: float = 1.0    # render luma at this fraction of H, W (own renderer):
+        rgb_hz: Annotated[float, Range(ge=0, le=100_000)] = 0.0   # 0: one per control tick
+        dvs_hz: Annotated[float, Range(ge=0, le=100_000)] = 0.0   # 0: every state sample
+        luma_scale: Annotated[float, Range(gt=0, le=1)] = 1.0
+                                   # render luma at this fraction of H, W (own renderer):
                                    # 0.5 is the emulator's downsample done by the GPU
                                    # path, ~2.6x cheaper per frame at 160 -> 80 px
 

@@ -18,11 +18,13 @@ The library code is sebvs.experts (detector, pid, nav, arm); this module only wi
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
+
+Byte = Annotated[int, Range(ge=0, le=255)]
 
 
 @dataclass
@@ -40,11 +42,12 @@ class Expert(Actor):
     class Params:
         task: Literal["nav", "arm"] = "nav"
         # detector (sebvs.experts.detector.ColorDetector)
-        color: list[float] = field(default_factory=lambda: [0.9, 0.15, 0.1])   # rgb, [0, 1]
-        hue_tol: float = 15.0          # deg
-        s_min: int = 90                # saturation, 0..255
-        c_min: int = 5                 # chroma, DN
-        min_area: int = 3              # px
+        color: list[Annotated[float, Range(ge=0, le=1)]] = \
+            field(default_factory=lambda: [0.9, 0.15, 0.1])     # rgb, [0, 1]
+        hue_tol: Annotated[float, Range(ge=0, le=360)] = 15.0   # deg (360: any hue)
+        s_min: Byte = 90               # saturation, 0..255
+        c_min: Byte = 5                # chroma, DN
+        min_area: Annotated[int, Range(ge=0)] = 3              # px
         # nav PIDs (sebvs.experts.nav.NavExpertConfig), normalised image units
         yaw_kp: float = 1.6
         yaw_ki: float = 0.3
@@ -53,15 +56,18 @@ class Expert(Actor):
         speed_ki: float = 0.5
         speed_kd: float = 0.0
         anti_windup: Literal["clamp", "backcalc", "none"] = "clamp"
-        desired_width: float = 0.12    # bbox width / image width at the following distance
+        # bbox width / image width at the following distance
+        desired_width: Annotated[float, Range(gt=0, le=1)] = 0.12
         turn_slowdown: float = 0.8
-        hold_s: float = 0.3            # s without a detection before searching
-        search_w: float = 0.6          # search yaw rate in [-1, 1] units
-        control_hz: float = 20.0       # dt of the first tick of an episode (then from t_sim)
+        hold_s: Annotated[float, Range(ge=0)] = 0.3   # s without a detection before searching
+        search_w: Annotated[float, Range(ge=-1, le=1)] = 0.6   # search yaw rate, [-1, 1] units
+        # dt of the first tick of an episode (then from t_sim)
+        control_hz: Annotated[float, Range(ge=1e-3, le=100_000)] = 20.0
         # arm (sebvs.experts.arm.ArmExpertConfig)
-        clearance: float = 0.10        # m above the object's top face
+        clearance: Annotated[float, Range(ge=0)] = 0.10   # m above the object's top face
         camera: str = ""               # wrist camera name ("" = the scene's first)
-        threads: int = 1               # OpenCV threads: actors share the cores, and a second
+        threads: Annotated[int, Range(ge=1, le=256)] = 1
+                                       # OpenCV threads: actors share the cores, and a second
                                        # thread waiting on a busy core costs more than it saves
 
     async def setup(self) -> None:

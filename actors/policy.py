@@ -13,8 +13,10 @@ the topology does not wire, is refused and the current one stays.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
+from sebvs.runtime.params import short_repr
 from sebvs.runtime.stats import summarize
 
 INFERENCE_WINDOW = 2000   # latencies kept for stats()
@@ -31,7 +33,7 @@ class Policy(Actor):
         task: str = "nav"            # ... for this task
         modalities: list[str] = field(default_factory=list)   # ... these (default: all three)
         modality: str = "rgb+event"  # the active one
-        threads: int = 1             # torch and OpenCV threads
+        threads: Annotated[int, Range(ge=1, le=256)] = 1    # torch and OpenCV threads
 
     async def setup(self) -> None:
         from sebvs.policy.infer import PolicySet, TickSync, resolve_checkpoints
@@ -55,7 +57,7 @@ class Policy(Actor):
     def _check_usable(self, modality: str) -> None:
         """Raise ValueError unless ``modality`` has a loaded checkpoint and wired inputs."""
         if modality not in self._inputs_of:
-            raise ValueError(f"unknown modality {modality!r} "
+            raise ValueError(f"unknown modality {short_repr(modality)} "
                              f"(one of {', '.join(self._inputs_of)})")
         if modality not in self.policies.policies:
             raise ValueError(f"modality {modality!r} has no checkpoint loaded "
@@ -108,7 +110,7 @@ class Policy(Actor):
     async def control(self, key: str, value) -> dict:
         if key == "modality":
             if not isinstance(value, str):
-                raise ValueError(f"modality must be a string, got {value!r}")
+                raise ValueError(f"modality must be a string, got {short_repr(value)}")
             self._check_usable(value)       # refused: the current modality stays
             old = self.params.modality
             last = self.sync.last_tick
@@ -125,7 +127,8 @@ class Policy(Actor):
             result = await super().control(key, value)
             _set_threads(self.params.threads)
             return result
-        raise ValueError(f"{key!r} cannot change while running (only modality, threads)")
+        raise ValueError(f"{short_repr(key)} cannot change while running "
+                         f"(only modality, threads)")
 
     def stats(self) -> dict:
         return {"modality": self.params.modality, "loaded": self.policies.modalities,

@@ -29,12 +29,12 @@ import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 
 from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 
 STREAMS = ("rgb", "events", "raw", "action")
 # file attribute <- accumulator meta key (either spelling)
@@ -68,13 +68,16 @@ class Recorder(Actor):
     @dataclass
     class Params:
         out: str = "datasets/nav"        # dataset directory (created; numbering resumes)
-        episodes: int = 0                # end the run after this many finished episodes (0: never)
+        # end the run after this many finished episodes (0: never)
+        episodes: Annotated[int, Range(ge=0)] = 0
         raw_events: bool = False         # also store raw events x, y, t, p when sent
         compression: Literal["lzf", "gzip", "none"] = "lzf"
         task: Literal["auto", "nav", "arm"] = "auto"   # auto: from the action's array name
         topology: str = ""               # topology file, stored as an attribute (sebvs record sets it)
-        max_pending: int = 256           # ticks waiting for a stream before they count as lost
-        grace_s: float = 2.0             # wait this long after an end marker for its last rows
+        # ticks waiting for a stream before they count as lost
+        max_pending: Annotated[int, Range(ge=1, le=100_000)] = 256
+        # wait this long after an end marker for its last rows
+        grace_s: Annotated[float, Range(ge=0, le=3600)] = 2.0
 
     async def setup(self) -> None:
         p = self.params

@@ -32,11 +32,11 @@ import asyncio
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Literal, Optional
+from typing import Annotated, Literal, Optional
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
 from sebvs.sim.stability import StabilityMonitor
 
@@ -60,18 +60,23 @@ class Sim(Actor):
         # 1 kHz lets render_hz be 200 with 20 Hz control)
         integrator: Literal["euler", "implicitfast", "implicit", "rk4", "discrete"] = \
             "discrete"
-        physics_hz: float = 1000.0
-        timestep: Optional[float] = None     # s; overrides physics_hz when set
-        control_hz: float = 20.0
-        render_hz: float = 200.0             # state rate: max of the camera's rgb_hz, dvs_hz
-        episode_s: float = 20.0
-        episodes: int = 1                    # 0: until stopped
-        realtime_factor: float = 1.0         # realtime clock: sim seconds per wall second
-        max_speed_factor: float = 0.0        # lockstep without action: 0 = unpaced
-        action_timeout_s: float = 10.0       # lockstep: give up waiting, keep last command
-        check_every: int = 1                 # stability check period, physics steps
-        linger_s: float = 0.5                # after the last episode, before ending the
-                                             # run: consumers drain what is queued
+        physics_hz: Annotated[float, Range(gt=0)] = 1000.0
+        # s; overrides physics_hz when set
+        timestep: Optional[Annotated[float, Range(gt=0, le=1)]] = None
+        control_hz: Annotated[float, Range(gt=0)] = 20.0
+        # state rate: max of the camera's rgb_hz, dvs_hz
+        render_hz: Annotated[float, Range(gt=0)] = 200.0
+        episode_s: Annotated[float, Range(gt=0)] = 20.0
+        episodes: Annotated[int, Range(ge=0)] = 1          # 0: until stopped
+        # realtime clock: sim seconds per wall second (bounded: the pace is waited in ns)
+        realtime_factor: Annotated[float, Range(ge=1e-3, le=1000)] = 1.0
+        # lockstep without action: 0 = unpaced
+        max_speed_factor: Annotated[float, Range(ge=0, le=1000)] = 0.0
+        # lockstep: give up waiting, keep last command
+        action_timeout_s: Annotated[float, Range(gt=0)] = 10.0
+        check_every: Annotated[int, Range(ge=1)] = 1        # stability check period, steps
+        # after the last episode, before ending the run: consumers drain what is queued
+        linger_s: Annotated[float, Range(ge=0, le=3600)] = 0.5
 
     # ------------------------------------------------------------------ setup
     async def setup(self) -> None:

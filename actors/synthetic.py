@@ -8,11 +8,14 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
+
+# px; at 4096 one RGB frame is 50 MB, times a ring's dozens of slots in /dev/shm
+Side = Annotated[int, Range(ge=1, le=4096)]
 
 
 def _texture(height: int, width: int, seed: int) -> np.ndarray:
@@ -38,21 +41,32 @@ class PatternSource(Actor):
 
     @dataclass
     class Params:
-        width: int = 640
-        height: int = 640
-        rate_hz: float = 30.0
-        luma_hz: float = 0.0           # 0: luma at rate_hz
+        width: Side = 640
+        height: Side = 640
+        # from 1 mHz: the frame period in ns must stay a finite number
+        rate_hz: Annotated[float, Range(ge=1e-3, le=100_000)] = 30.0
+        luma_hz: Annotated[float, Range(ge=0, le=100_000)] = 0.0   # 0: luma at rate_hz
         speed_px_s: float = 120.0      # horizontal drift of the pattern
         square: bool = True            # a bright square moving across the texture
-        max_frames: int = 0            # control ticks; 0: until stopped, else the run ends
+        max_frames: Annotated[int, Range(ge=0)] = 0   # control ticks; 0: until stopped
 
     async def setup(self) -> None:
         p = self.params
         if p.width <= 0 or p.height <= 0 or p.rate_hz <= 0:
             raise ValueError("width, height and rate_hz must be positive")
+        self._make_texture()
+        self.sent = 0
+
+    def _make_texture(self) -> None:
+        p = self.params
         self.texture = _texture(p.height, p.width, self.seed)
         self.texture_luma = self.texture.mean(axis=2).astype(np.uint8)
-        self.sent = 0
+
+    async def control(self, key: str, value) -> dict:
+        result = await super().control(key, value)
+        if key in ("width", "height"):
+            self._make_texture()    # frames are windows of the texture: it must fit them
+        return result
 
     def _draw(self, t: float, rgb: np.ndarray | None, luma: np.ndarray | None) -> None:
         p = self.params
@@ -127,7 +141,8 @@ class Sink(Actor):
 
     @dataclass
     class Params:
-        work_ms: float = 0.0     # simulated processing time per frame (a slow consumer)
+        # simulated processing time per frame (a slow consumer); it blocks the actor
+        work_ms: Annotated[float, Range(ge=0, le=60_000)] = 0.0
 
     async def setup(self) -> None:
         self.count = 0
@@ -157,7 +172,7 @@ class Probe(Actor):
     @dataclass
     class Params:
         path: str = "probe"
-        max_arrays: int = 200
+        max_arrays: Annotated[int, Range(ge=0)] = 200
 
     async def setup(self) -> None:
         self.entries: list[dict] = []

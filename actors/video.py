@@ -20,10 +20,11 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 
 # frames of an episode may trail its end message (they pass the camera and emulator)
 FINALIZE_AFTER_S = 1.0
@@ -37,10 +38,11 @@ class VideoWriter(Actor):
     class Params:
         directory: str = ""        # "" = write nothing
         prefix: str = "episode"    # files are <prefix>__ep<k>.mp4
-        episodes: int = 1          # the first K episodes of the run
+        episodes: Annotated[int, Range(ge=0)] = 1       # the first K episodes of the run
         label: str = ""            # first word of the caption (the modality)
-        fps: float = 10.0          # = the sim's control_hz: the video plays in sim time
-        scale: int = 3             # nearest-neighbour upscaling of the frames
+        # = the sim's control_hz: the video plays in sim time
+        fps: Annotated[float, Range(gt=0, le=1000)] = 10.0
+        scale: Annotated[int, Range(ge=1, le=16)] = 3   # nearest-neighbour upscaling
 
     async def setup(self) -> None:
         p = self.params

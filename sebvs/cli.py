@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import os
 import signal
 import sys
@@ -11,6 +12,17 @@ import tomllib
 
 # subcommand modules with a `register(subparsers)`; each adds its own commands
 PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive, finite number "
+                                         f"of seconds")
+    return value
 
 
 def _cmd_run(args) -> int:
@@ -93,6 +105,9 @@ def _cmd_ctl(args) -> int:
             return 2
         requests = []
         for text in args.args:
+            if "=" not in text or text.startswith("="):
+                print(f"sebvs ctl: set expects key=value, got {text!r}", file=sys.stderr)
+                return 2
             parts, value = parse_override(f"{args.actor}.{text}")
             requests.append({"cmd": "set", "key": ".".join(parts[1:]), "value": value})
     elif args.command == "get":
@@ -102,10 +117,17 @@ def _cmd_ctl(args) -> int:
     ctx = zmq.Context.instance()
     code = 0
     for req in requests:
-        reply = control_request(ctx, info["actors"][args.actor]["control"], req, args.timeout)
+        try:
+            reply = control_request(ctx, info["actors"][args.actor]["control"], req,
+                                    args.timeout)
+        except ValueError:      # msgpack's errors: not an actor's control socket answering
+            reply = "unreadable"
         if reply is None:
             print(f"sebvs ctl: {args.actor} did not answer within {args.timeout} s",
                   file=sys.stderr)
+            return 1
+        if not isinstance(reply, dict):
+            print(f"sebvs ctl: {args.actor} sent an unreadable reply", file=sys.stderr)
             return 1
         print(json.dumps(reply.get("result") if reply.get("ok") else reply, indent=2))
         if not reply.get("ok"):
@@ -137,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="sebvs",
         description="Synthetic event-based visual servoing: MuJoCo robots seen through an "
                     "emulated event camera, run as a graph of ZeroMQ actors.")
+    p.add_argument("--debug", action="store_true",
+                   help="on an error, show the Python traceback instead of one line "
+                        "(give it before the command: sebvs --debug run ...)")
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", required=True)
 
     r = sub.add_parser("run", help="start a topology: one process per actor",
@@ -146,7 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("topology", help="topology TOML file")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="override a parameter (value read as TOML; repeatable)")
-    r.add_argument("--for", dest="duration", type=float, default=None, metavar="SECONDS",
+    r.add_argument("--for", dest="duration", type=_seconds, default=None, metavar="SECONDS",
                    help="stop after this many seconds (default: until Ctrl-C or the end)")
     r.add_argument("--profile", action="store_true",
                    help="attach the latency profiler and print its table at the end")
@@ -174,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("actor")
     c.add_argument("command", choices=["get", "set", "stats", "stop", "ping"])
     c.add_argument("args", nargs="*", metavar="KEY[=VALUE]")
-    c.add_argument("--timeout", type=float, default=3.0)
+    c.add_argument("--timeout", type=_seconds, default=3.0)
     c.set_defaults(func=_cmd_ctl)
 
     f = sub.add_parser("profile", help="attach the latency profiler to a live run",
@@ -183,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(p50/p90/p99/max, counts, drops) and end-to-end chains.")
     f.add_argument("run", nargs="?", default=None,
                    help="run name, id or directory (default: the newest live run)")
-    f.add_argument("--for", dest="duration", type=float, default=5.0, metavar="SECONDS")
+    f.add_argument("--for", dest="duration", type=_seconds, default=5.0, metavar="SECONDS")
     f.add_argument("--json", metavar="FILE")
     f.add_argument("--plot", metavar="FILE", help="latency histograms as PNG")
     f.set_defaults(func=_cmd_profile)
@@ -197,12 +222,34 @@ def main(argv: list[str] | None = None) -> int:
     if os.getcwd() not in sys.path:
         sys.path.insert(0, os.getcwd())  # users' actor modules, as `python -m` would see them
     args = build_parser().parse_args(argv)
+    from .runtime.runs import RunInfoError
+    from .runtime.supervisor import RunFailed
     from .runtime.topology import TopologyError
+    # what a user can get wrong (a file, a value, a run name): one line and exit status 2;
+    # anything else is a bug and keeps its traceback (a KeyError too, though a LookupError)
+    user_errors = (TopologyError, RunInfoError, LookupError, tomllib.TOMLDecodeError, OSError)
     try:
         return args.func(args)
-    except (TopologyError, LookupError, tomllib.TOMLDecodeError) as exc:
-        print(f"sebvs: {exc}", file=sys.stderr)
+    except user_errors as exc:
+        if args.debug or isinstance(exc, (KeyError, IndexError)):
+            raise
+        print(f"sebvs: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except RunFailed as exc:    # an actor died: its message carries the end of its log
+        if args.debug:
+            raise
+        print(f"sebvs: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print("sebvs: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).splitlines()).strip()
+    return text or type(exc).__name__
 
 
 if __name__ == "__main__":

@@ -17,7 +17,10 @@ def _cmd_eval(args) -> int:
                     extra=args.set, video=args.video, video_episodes=args.video_episodes)
     try:
         plan.validate()
-    except ValueError as exc:
+        _check_checkpoints(plan)
+    except (ValueError, OSError) as exc:
+        if getattr(args, "debug", False):
+            raise
         print(f"sebvs eval: {exc}", file=sys.stderr)
         return 2
     results = evaluate(plan)
@@ -25,6 +28,17 @@ def _cmd_eval(args) -> int:
     print(f"wrote {plan.out}/: {TASKS[plan.task].output_files}"
           + (f", videos/ ({len(results.get('videos', []))} files)" if plan.video else ""))
     return 0
+
+
+def _check_checkpoints(plan) -> None:
+    """Load every policy's checkpoint once before any run: a missing, damaged or refused
+    file then stops the evaluation with its name, not a policy actor minutes into it."""
+    from sebvs.policy.checkpoint import checkpoint_paths, load_checkpoint
+    for modality in plan.modalities:
+        pt = checkpoint_paths(plan.checkpoints, plan.task, modality)[0]
+        if not pt.is_file():
+            raise FileNotFoundError(f"checkpoint for modality {modality!r} not found: {pt}")
+        load_checkpoint(pt, expect={"task": plan.task, "modality": modality})
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -8,11 +8,16 @@ channels, normalisation) is in the JSON config.
 from __future__ import annotations
 
 import json
+import pickle
 from pathlib import Path
 
 from .inputs import MODALITY_INPUTS, Normalisation, channels, check_modality
 
 CONFIG_VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A checkpoint or its config that cannot be used; the message names the file."""
 
 
 def checkpoint_paths(out_dir: str | Path, task: str, modality: str) -> tuple[Path, Path]:
@@ -43,7 +48,19 @@ def read_config(pt_path: str | Path) -> dict:
     js = Path(pt_path).with_suffix(".json")
     if not js.exists():
         raise FileNotFoundError(f"checkpoint {pt_path}: its config {js.name} is missing")
-    return json.loads(js.read_text())
+    try:
+        cfg = json.loads(js.read_text(encoding="utf-8"))
+    except ValueError as exc:   # not UTF-8, or not JSON
+        raise CheckpointError(f"checkpoint config {js}: unreadable ({_first_line(exc)})") \
+            from None
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"checkpoint config {js}: expected a JSON object")
+    return cfg
+
+
+def _first_line(exc: BaseException, limit: int = 200) -> str:
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
@@ -60,25 +77,43 @@ def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
     cfg = read_config(pt_path)
     for key, want in (expect or {}).items():
         if cfg.get(key) != want:
-            raise ValueError(f"checkpoint {pt_path}: config has {key}={cfg.get(key)!r}, "
-                             f"expected {want!r}")
-    check_modality(cfg["modality"])
-    if cfg["channels"] != channels(cfg["modality"]):
-        raise ValueError(f"checkpoint {pt_path}: {cfg['channels']} channels do not match "
-                         f"modality {cfg['modality']!r} ({channels(cfg['modality'])})")
-    norm = Normalisation.from_dict(cfg["normalisation"])
-    if norm.size != cfg["size"]:
-        raise ValueError(f"checkpoint {pt_path}: normalisation size {norm.size} != size "
-                         f"{cfg['size']}")
-    # configs written before the conv stem existed have no "stem": theirs is the patch one
-    model = ERP(cfg["task"], cfg["channels"], cfg["size"], stem=cfg.get("stem", "patch"))
-    state = torch.load(pt_path, map_location="cpu", weights_only=True)
+            raise CheckpointError(f"checkpoint {pt_path}: config has {key}={cfg.get(key)!r}, "
+                                  f"expected {want!r}")
+    try:
+        check_modality(cfg["modality"])
+        if cfg["channels"] != channels(cfg["modality"]):
+            raise CheckpointError(f"checkpoint {pt_path}: {cfg['channels']} channels do not "
+                                  f"match modality {cfg['modality']!r} "
+                                  f"({channels(cfg['modality'])})")
+        norm = Normalisation.from_dict(cfg["normalisation"])
+        if norm.size != cfg["size"]:
+            raise CheckpointError(f"checkpoint {pt_path}: normalisation size {norm.size} != "
+                                  f"size {cfg['size']}")
+        # configs written before the conv stem existed have no "stem": theirs is the patch one
+        model = ERP(cfg["task"], cfg["channels"], cfg["size"], stem=cfg.get("stem", "patch"))
+    except CheckpointError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:   # a field missing or of the wrong kind
+        raise CheckpointError(f"checkpoint config {pt_path.with_suffix('.json')}: "
+                              f"{type(exc).__name__}: {_first_line(exc)}") from None
+    try:
+        state = torch.load(pt_path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        # torch's own message suggests weights_only=False: the one thing not to do here
+        raise CheckpointError(f"checkpoint {pt_path}: refused, it holds pickled objects "
+                              f"besides tensors (loading them could run code)") from None
+    except Exception as exc:    # a truncated or foreign file fails in many ways
+        raise CheckpointError(f"checkpoint {pt_path}: damaged or not a torch state_dict "
+                              f"({type(exc).__name__}: {_first_line(exc)})") from None
+    if not isinstance(state, dict):
+        raise CheckpointError(f"checkpoint {pt_path}: holds a {type(state).__name__}, "
+                              f"not a state_dict")
     try:
         model.load_state_dict(state)
-    except RuntimeError as exc:
-        raise ValueError(f"checkpoint {pt_path}: weights do not match the config "
-                         f"(task {cfg['task']}, modality {cfg['modality']}, size {cfg['size']}, "
-                         f"stem {cfg.get('stem', 'patch')}):"
-                         f" {str(exc).splitlines()[0]} ...") from None
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        raise CheckpointError(f"checkpoint {pt_path}: weights do not match the config "
+                              f"(task {cfg['task']}, modality {cfg['modality']}, size "
+                              f"{cfg['size']}, stem {cfg.get('stem', 'patch')}): "
+                              f"{_first_line(exc)}") from None
     model.eval()
     return model, cfg, norm

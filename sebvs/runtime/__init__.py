@@ -1,5 +1,6 @@
 """The actor runtime: ZeroMQ actors in their own processes, wired by a topology file."""
 from .actor import Actor
+from .params import Range
 from .wire import Message
 
-__all__ = ["Actor", "Message"]
+__all__ = ["Actor", "Message", "Range"]

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .params import coerce_param, param_fields
+from .params import coerce_param, param_fields, short_repr
 from .wire import Message
 
 
@@ -99,10 +99,14 @@ class Actor:
 
     # --- control -------------------------------------------------------------------
     async def control(self, key: str, value: Any) -> dict:
-        """Handle ``sebvs ctl RUN ACTOR set key=value``; raise ValueError to refuse."""
+        """Handle ``sebvs ctl RUN ACTOR set key=value``; raise ValueError to refuse.
+
+        The value passes the same check as in a topology (type, Range, finite floats)
+        before it is set: a refused one leaves the running value as it was.
+        """
         fields = param_fields(type(self.params))
         if key not in fields:
-            raise ValueError(f"unknown key {key!r} for actor {self.name!r} "
+            raise ValueError(f"unknown key {short_repr(key)} for actor {self.name!r} "
                              f"(known: {', '.join(sorted(fields)) or 'none'})")
         new = coerce_param(fields[key], value, where=f"actor {self.name!r} key {key!r}")
         setattr(self.params, key, new)

@@ -8,20 +8,25 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import tomllib
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, Union
 
-from .params import build_params
+from .params import Range, build_params, clip, coerce_param, short_repr
 
-TOPOLOGY_KEYS = {"name": str, "clock": str, "seed": int, "restart": str,
-                 "max_restarts": int, "transport": str, "host": str, "description": str,
-                 "queue": int, "ready_timeout_s": (int, float)}
-CLOCKS = ("lockstep", "realtime")
-RESTART_POLICIES = ("stop", "restart")
-TRANSPORTS = ("ipc", "tcp")
+MAX_QUEUE = 100_000
+QUEUE = Union[Annotated[int, Range(ge=1, le=MAX_QUEUE)], Literal["latest"]]
+# [topology] keys, checked by the same rules as actor parameters
+TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
+                 "seed": Annotated[int, Range(ge=0)], "restart": Literal["stop", "restart"],
+                 "max_restarts": Annotated[int, Range(ge=0)],
+                 "transport": Literal["ipc", "tcp"], "host": str, "description": str,
+                 "queue": QUEUE, "ready_timeout_s": Annotated[float, Range(gt=0)]}
+# the name becomes a directory under the runs directory: no separators, no leading dot
+RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 ACTOR_RESERVED = {"run", "inputs", "keep", "cpus"}
 DEFAULT_QUEUE = 32
 
@@ -64,7 +69,7 @@ class Topology:
     max_restarts: int = 3
     transport: str = "ipc"
     host: str = "127.0.0.1"
-    queue: int = DEFAULT_QUEUE
+    queue: int | str = DEFAULT_QUEUE     # every input's default: N messages, or "latest"
     ready_timeout_s: float = 60.0
     description: str = ""
     actors: dict[str, ActorSpec] = field(default_factory=dict)
@@ -85,11 +90,11 @@ class Topology:
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``actor.key=value`` -> (["actor", "key"], value), the value read as TOML when it parses."""
     if "=" not in text:
-        raise TopologyError(f"--set {text!r}: expected actor.key=value")
+        raise TopologyError(f"--set {short_repr(text)}: expected actor.key=value")
     path, _, raw = text.partition("=")
     parts = path.strip().split(".")
     if len(parts) < 2 or not all(parts):
-        raise TopologyError(f"--set {text!r}: expected actor.key=value "
+        raise TopologyError(f"--set {short_repr(text)}: expected actor.key=value "
                             f"(or topology.key=value)")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
@@ -98,58 +103,76 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return parts, value
 
 
+def _subtable(table: dict, key: str, text: str) -> dict:
+    sub = table.setdefault(key, {})
+    if not isinstance(sub, dict):
+        raise TopologyError(f"--set {short_repr(text)}: {short_repr(key)} is not a table")
+    return sub
+
+
 def _apply_override(doc: dict, text: str) -> None:
     parts, value = parse_override(text)
     if parts[0] == "topology":
-        table = doc.setdefault("topology", {})
+        table = _subtable(doc, "topology", text)
     else:
-        actors = doc.setdefault("actors", {})
+        actors = _subtable(doc, "actors", text)
         if parts[0] not in actors:
             # `--set NAME.run="module:Class"` adds an actor (a video writer, a recorder...)
             if parts[1:] != ["run"]:
-                raise TopologyError(f"--set {text!r}: no actor {parts[0]!r} "
+                raise TopologyError(f"--set {short_repr(text)}: no actor {short_repr(parts[0])} "
                                     f"(actors: {', '.join(actors) or 'none'}; add one with "
-                                    f"{parts[0]}.run=\"module:Class\" first)")
-            actors[parts[0]] = {}
-        table = actors[parts[0]]
+                                    f"{clip(parts[0])}.run=\"module:Class\" first)")
+        table = _subtable(actors, parts[0], text)
     for p in parts[1:-1]:
-        table = table.setdefault(p, {})
-        if not isinstance(table, dict):
-            raise TopologyError(f"--set {text!r}: {p!r} is not a table")
+        table = _subtable(table, p, text)
     table[parts[-1]] = value
 
 
 def _import_actor(run: str, where: str) -> type:
     from .actor import Actor
-    if not isinstance(run, str) or ":" not in run:
-        raise TopologyError(f"{where} key 'run': expected \"module:Class\", got {run!r}")
-    module_name, _, cls_name = run.partition(":")
+    module_name, _, cls_name = run.partition(":") if isinstance(run, str) else ("", "", "")
+    # relative (".mod") and empty module names make importlib raise TypeError/ValueError
+    if not (all(part.isidentifier() for part in module_name.split("."))
+            and cls_name.isidentifier()):
+        raise TopologyError(f"{where} key 'run': expected \"package.module:Class\", "
+                            f"got {short_repr(run)}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise TopologyError(f"{where} key 'run': cannot import {module_name!r}: {exc}") from None
+        raise TopologyError(f"{where} key 'run': cannot import {module_name!r}: "
+                            f"{_first_line(exc)}") from None
+    except Exception as exc:  # the module's own code failed (a SyntaxError, a bad import...)
+        raise TopologyError(f"{where} key 'run': importing {module_name!r} failed: "
+                            f"{type(exc).__name__}: {_first_line(exc)}") from None
     cls = getattr(module, cls_name, None)
     if not (isinstance(cls, type) and issubclass(cls, Actor)):
-        raise TopologyError(f"{where} key 'run': {run!r} is not an Actor class")
+        raise TopologyError(f"{where} key 'run': {short_repr(run)} is not an Actor class")
     return cls
 
 
-def _parse_input(spec: Any, where: str, default_queue: int) -> tuple[str, int | str]:
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return clip(lines[0]) if lines else ""
+
+
+def _parse_input(spec: Any, where: str, default_queue: int | str) -> tuple[str, int | str]:
     if isinstance(spec, str):
         return spec, default_queue
     if isinstance(spec, dict):
         unknown = set(spec) - {"from", "queue"}
         if unknown:
-            raise TopologyError(f"{where}: unknown key {sorted(unknown)[0]!r} (from, queue)")
+            raise TopologyError(f"{where}: unknown key {short_repr(sorted(unknown)[0])} "
+                                f"(from, queue)")
         if not isinstance(spec.get("from"), str):
             raise TopologyError(f"{where}: 'from' = \"actor/output\" is required")
-        queue = spec.get("queue", default_queue)
-        if not (queue == "latest" or (isinstance(queue, int) and not isinstance(queue, bool)
-                                      and 1 <= queue <= 100_000)):
-            raise TopologyError(f"{where} key 'queue': expected a positive integer or "
-                                f"\"latest\", got {queue!r}")
+        try:
+            queue = coerce_param(QUEUE, spec.get("queue", default_queue),
+                                 where=f"{where} key 'queue'")
+        except ValueError as exc:
+            raise TopologyError(str(exc)) from None
         return spec["from"], queue
-    raise TopologyError(f"{where}: expected \"actor/output\" or a table, got {spec!r}")
+    raise TopologyError(f"{where}: expected \"actor/output\" or a table, "
+                        f"got {short_repr(spec)}")
 
 
 def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
@@ -159,7 +182,7 @@ def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
             and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value)
             and len(set(value)) == len(value)):
         raise TopologyError(f"{where} key 'cpus': expected a non-empty list of distinct CPU "
-                            f"numbers such as [0] or [2, 3], got {value!r}")
+                            f"numbers such as [0] or [2, 3], got {short_repr(value)}")
     if not hasattr(os, "sched_setaffinity"):
         raise TopologyError(f"{where} key 'cpus': CPU pinning is not supported on this platform")
     available = os.sched_getaffinity(0)
@@ -173,11 +196,22 @@ def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
 def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topology:
     path = Path(path)
     try:
-        doc = tomllib.loads(path.read_text())
+        text = path.read_text(encoding="utf-8")     # TOML is UTF-8 whatever the locale
     except FileNotFoundError:
         raise TopologyError(f"{path}: no such topology file") from None
+    except IsADirectoryError:
+        raise TopologyError(f"{path}: is a directory, not a topology file") from None
+    except UnicodeDecodeError as exc:
+        raise TopologyError(f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at "
+                            f"offset {exc.start})") from None
+    except OSError as exc:
+        raise TopologyError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:  # duplicate tables and keys end up here too
         raise TopologyError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise TopologyError(f"{path}: arrays or tables nested too deeply") from None
     for text in overrides:
         _apply_override(doc, text)
     return build_topology(doc, path)
@@ -191,29 +225,32 @@ def build_topology(doc: dict, path: Path) -> Topology:
     top = doc.get("topology")
     if not isinstance(top, dict):
         raise TopologyError(f"{path}: missing [topology] table")
+    checked = {}
     for key, value in top.items():
         if key not in TOPOLOGY_KEYS:
-            raise TopologyError(f"{path}: [topology] unknown key {key!r} "
+            raise TopologyError(f"{path}: [topology] unknown key {short_repr(key)} "
                                 f"(known: {', '.join(TOPOLOGY_KEYS)})")
-        types = TOPOLOGY_KEYS[key]
-        if not isinstance(value, types) or isinstance(value, bool):
-            raise TopologyError(f"{path}: [topology] key {key!r}: wrong type "
-                                f"{type(value).__name__} ({value!r})")
-    for key, allowed in (("clock", CLOCKS), ("restart", RESTART_POLICIES),
-                         ("transport", TRANSPORTS)):
-        if key in top and top[key] not in allowed:
-            raise TopologyError(f"{path}: [topology] key {key!r}: {top[key]!r} is not one of "
-                                f"{', '.join(allowed)}")
-    if "name" not in top:
+        try:
+            checked[key] = coerce_param(TOPOLOGY_KEYS[key], value,
+                                        where=f"{path}: [topology] key {key!r}")
+        except ValueError as exc:
+            raise TopologyError(str(exc)) from None
+    if "name" not in checked:
         raise TopologyError(f"{path}: [topology] key 'name' is required")
-    topo = Topology(path=path, **top)
+    if not RUN_NAME.fullmatch(checked["name"]):
+        raise TopologyError(f"{path}: [topology] key 'name': {short_repr(checked['name'])} is "
+                            f"not a run name (up to 100 ASCII letters, digits, '_', '-' and '.', "
+                            f"not starting with '.')")
+    topo = Topology(path=path, **checked)
     actors = doc.get("actors", {})
     if not isinstance(actors, dict) or not actors:
         raise TopologyError(f"{path}: no [actors.<name>] tables")
     for name, table in actors.items():
+        # names go into socket paths (about 100 bytes at most) and shared-memory names
+        if not (name.replace("_", "").replace("-", "").isalnum() and len(name) <= 64):
+            raise TopologyError(f"{path}: [actors] {short_repr(name)}: actor names use up to "
+                                f"64 letters, digits, '_' and '-'")
         where = f"{path}: [actors.{name}]"
-        if not name.replace("_", "").replace("-", "").isalnum():
-            raise TopologyError(f"{where}: actor names use letters, digits, '_' and '-'")
         if not isinstance(table, dict):
             raise TopologyError(f"{where}: expected a table")
         if "run" not in table:
@@ -224,14 +261,14 @@ def build_topology(doc: dict, path: Path) -> Topology:
             raise TopologyError(f"{where} key 'inputs': expected a table")
         inputs = {}
         for inp, spec in raw_inputs.items():
-            iwhere = f"{where} key 'inputs.{inp}'"
+            iwhere = f"{where} key 'inputs.{clip(inp)}'"
             if inp not in cls.inputs:
-                raise TopologyError(f"{iwhere}: {table['run']} has no input {inp!r} "
+                raise TopologyError(f"{iwhere}: {table['run']} has no input {short_repr(inp)} "
                                     f"(inputs: {', '.join(cls.inputs) or 'none'})")
             source, queue = _parse_input(spec, iwhere, topo.queue)
             producer, _, output = source.partition("/")
             if not producer or not output:
-                raise TopologyError(f"{iwhere}: {source!r} is not \"actor/output\"")
+                raise TopologyError(f"{iwhere}: {short_repr(source)} is not \"actor/output\"")
             inputs[inp] = InputSpec(inp, producer, output, queue)
         params = {k: v for k, v in table.items() if k not in ACTOR_RESERVED}
         try:
