@@ -119,7 +119,7 @@ def _cmd_ctl(args) -> int:
     for req in requests:
         try:
             reply = control_request(ctx, info["actors"][args.actor]["control"], req,
-                                    args.timeout)
+                                    args.timeout, token=info.get("token"))
         except ValueError:      # msgpack's errors: not an actor's control socket answering
             reply = "unreadable"
         if reply is None:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from .runtime.profiler import ProfileCollector, format_report
-from .runtime.supervisor import RunFailed, Supervisor, control_request
+from .runtime.supervisor import RunFailed, Supervisor
 from .runtime.topology import load_topology
 
 
@@ -64,14 +64,12 @@ def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_afte
         if swapped[0] or time.monotonic() - last_check[0] < 0.1:
             return
         last_check[0] = time.monotonic()
-        policy = sup.specs["policy"]["control"]
-        stats = control_request(sup.ctx, policy, {"cmd": "stats"}, 1.0)
+        stats = sup.request("policy", {"cmd": "stats"}, 1.0)
         if not (stats and stats.get("ok")
                 and stats["result"]["actor_stats"]["emitted"] >= swap_after):
             return
         swapped[0] = True
-        reply = control_request(sup.ctx, policy,
-                                {"cmd": "set", "key": "modality", "value": swap_to}, 3.0)
+        reply = sup.request("policy", {"cmd": "set", "key": "modality", "value": swap_to}, 3.0)
         print(f"sebvs demo: after {swap_after} actions, policy set modality={swap_to}: "
               f"{json.dumps(reply.get('result') if reply and reply.get('ok') else reply)}",
               file=sys.stderr)

@@ -10,13 +10,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import zmq
 
 from sebvs.cli import main
 from sebvs.data.check import check_dataset
 from sebvs.data.episode import open_episode
 from sebvs.data.index import DatasetIndex
-from sebvs.runtime.supervisor import Supervisor, control_request, run_topology
+from sebvs.runtime.supervisor import Supervisor, run_topology
 from sebvs.runtime.topology import load_topology
 from tests.data_actors import expected_action
 
@@ -102,11 +101,10 @@ def test_kill_9_loses_only_the_episode_in_progress(tmp_path):
     topo = load_topology(topology(tmp_path, out, frames=100, episodes=0))   # 0.5 s episodes
     sup = Supervisor(topo, runs_dir=tmp_path, echo=lambda s: None)
     sup.start()
-    ctx = zmq.Context.instance()
     try:
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
-            reply = control_request(ctx, sup.specs["recorder"]["control"], {"cmd": "stats"}, 2)
+            reply = sup.request("recorder", {"cmd": "stats"}, 2)
             st = reply["result"]["actor_stats"]
             if st["episodes"] >= 2 and 20 <= st["frames_in_progress"] <= 70:
                 break

@@ -16,12 +16,11 @@ from typing import Annotated, Optional
 
 import numpy as np
 import pytest
-import zmq
 
 from sebvs.cli import main
 from sebvs.runtime import Range
 from sebvs.runtime.params import REPR_LIMIT, build_params, coerce_param, param_fields
-from sebvs.runtime.supervisor import Supervisor, control_request
+from sebvs.runtime.supervisor import Supervisor
 from sebvs.runtime.topology import Topology, TopologyError, load_topology
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,10 +161,9 @@ def test_ctl_set_uses_the_same_schema_and_keeps_the_old_value():
 def test_ctl_set_refusal_leaves_the_live_actor_running(tmp_path):
     sup = Supervisor(load_topology(SYNTHETIC, SMALL), runs_dir=tmp_path, echo=lambda s: None)
     sup.start()
-    ctx = zmq.Context.instance()
 
     def ctl(**req):
-        reply = control_request(ctx, sup.specs["source"]["control"], req, 3.0)
+        reply = sup.request("source", req, 3.0)
         assert reply is not None, req
         return reply
 

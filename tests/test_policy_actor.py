@@ -6,13 +6,12 @@ import time
 import numpy as np
 import pytest
 import torch
-import zmq
 
 from actors.policy import Policy
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.inputs import Normalisation, channels
 from sebvs.policy.model import ERP
-from sebvs.runtime.supervisor import Supervisor, control_request
+from sebvs.runtime.supervisor import Supervisor
 from sebvs.runtime.topology import load_topology
 from sebvs.runtime.wire import Message
 
@@ -53,7 +52,7 @@ max_arrays = 5
 
 
 def ctl(sup, actor, **req):
-    reply = control_request(zmq.Context.instance(), sup.specs[actor]["control"], req, 5.0)
+    reply = sup.request(actor, req, 5.0)
     assert reply is not None, f"{actor} did not answer {req}"
     return reply
 

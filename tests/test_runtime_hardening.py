@@ -269,3 +269,35 @@ inputs = { frames = "source/frames" }
     stalled = [m for m in messages if "stalled" in m]
     assert len(stalled) == 1, messages
     assert "input sink.frames is stalled: source/frames sent" in stalled[0]
+
+
+# --------------------------------------------------------------------------- control
+def test_control_needs_the_runs_token_and_run_json_is_private(tmp_path):
+    import json
+    import stat
+
+    import zmq
+
+    from sebvs.runtime.supervisor import Supervisor, control_request
+    from sebvs.runtime.topology import load_topology
+    root = Path(__file__).resolve().parents[1]
+    sup = Supervisor(load_topology(root / "topologies" / "synthetic.toml",
+                                   ["source.width=32", "source.height=32"]),
+                     runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    try:
+        endpoint = sup.specs["relay"]["control"]
+        ctx = zmq.Context.instance()
+        for token in (None, "0" * 32, sup.token[:-1]):
+            reply = control_request(ctx, endpoint, {"cmd": "set", "key": "mode", "value": "copy"},
+                                    2.0, token=token)
+            assert reply["ok"] is False and "token" in reply["error"]
+        assert sup.request("relay", {"cmd": "get", "key": "mode"})["result"]["mode"] != "copy"
+        run_json = sup.rundir / "run.json"
+        assert json.loads(run_json.read_text())["token"] == sup.token
+        assert stat.S_IMODE(run_json.stat().st_mode) == 0o600
+        # a forged control request of 50 MB is never read in full, and the actor lives on
+        control_request(ctx, endpoint, {"cmd": "get", "pad": "x" * (50 << 20)}, 1.0)
+        assert sup.request("relay", {"cmd": "ping"})["ok"]
+    finally:
+        sup.stop()

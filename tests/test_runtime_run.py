@@ -12,7 +12,7 @@ import pytest
 import zmq
 
 from sebvs.runtime.profiler import ProfileCollector, format_report
-from sebvs.runtime.supervisor import Supervisor, control_request, run_topology
+from sebvs.runtime.supervisor import Supervisor, run_topology
 from sebvs.runtime.topology import load_topology
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,7 +48,7 @@ def start(tmp_path, overrides=(), path=SYNTHETIC, echo=None):
 
 
 def ctl(sup, actor, **req):
-    reply = control_request(zmq.Context.instance(), sup.specs[actor]["control"], req, 3.0)
+    reply = sup.request(actor, req, 3.0)
     assert reply is not None, f"{actor} did not answer {req}"
     return reply
 

@@ -31,10 +31,8 @@ class Progress:
 
     def __init__(self, sup, recorder: str, episodes: int, every_s: float = 0.5,
                  enabled: bool = True):
-        import zmq
         from tqdm import tqdm
         self.sup, self.recorder, self.every_s = sup, recorder, every_s
-        self.ctx = zmq.Context.instance()
         self.t0 = time.monotonic()
         self.next_poll = 0.0
         self.last: dict = {}
@@ -50,11 +48,9 @@ class Progress:
         self.refresh()
 
     def refresh(self) -> None:
-        from sebvs.runtime.supervisor import control_request
-        spec = self.sup.specs.get(self.recorder)
-        if spec is None:
+        if self.recorder not in self.sup.specs:
             return
-        reply = control_request(self.ctx, spec["control"], {"cmd": "stats"}, 0.5)
+        reply = self.sup.request(self.recorder, {"cmd": "stats"}, 0.5)
         if not reply or not reply.get("ok"):
             return
         st = reply["result"].get("actor_stats", {})

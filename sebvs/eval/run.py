@@ -26,7 +26,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ..runtime.supervisor import RunFailed, Supervisor, control_request
+from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
 
@@ -245,7 +245,7 @@ def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
         if time.monotonic() - last_poll[0] < 0.5:
             return
         last_poll[0] = time.monotonic()
-        reply = control_request(sup.ctx, sup.specs["tracker"]["control"], {"cmd": "stats"}, 0.5)
+        reply = sup.request("tracker", {"cmd": "stats"}, 0.5)
         if reply and reply.get("ok"):
             n = reply["result"]["actor_stats"]["episodes_finished"]
             bar.update(done_before + n - bar.n)

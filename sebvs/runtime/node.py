@@ -9,6 +9,7 @@ only while someone is subscribed). The inputs (``inputs.py``) and the outputs
 from __future__ import annotations
 
 import asyncio
+import hmac
 import logging
 import os
 import signal
@@ -37,6 +38,7 @@ class Node:
     def __init__(self, spec: dict, actor_factory):
         self.spec = spec
         self.name = spec["name"]
+        self.token = spec.get("token")    # None: a Node built without a supervisor (tools)
         self.ctx = zmq.asyncio.Context()                  # control (not latency critical)
         self.sync_ctx = zmq.Context.shadow(self.ctx.underlying)  # data paths: no futures
         self.outputs = Outputs(self.name)
@@ -86,6 +88,10 @@ class Node:
     async def _handle_control(self, req: Any) -> dict:
         if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
             raise ValueError("a control request is a map with a 'cmd' string")
+        if self.token is not None and not (
+                isinstance(req.get("token"), str)
+                and hmac.compare_digest(req["token"].encode(), self.token.encode())):
+            raise PermissionError("control requests carry the run's token (run.json 'token')")
         cmd = req["cmd"]
         if cmd == "ping":
             return {"actor": self.name, "started": self.started.is_set()}

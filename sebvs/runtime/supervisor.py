@@ -82,8 +82,12 @@ def log_tail(path: Path, n: int = LOG_TAIL_LINES) -> str:
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
+    """Write, then rename over ``path``; readable by its owner only (run.json holds the
+    run's control token)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(json.dumps(data, indent=2, default=str))
     os.replace(tmp, path)
 
 
@@ -104,6 +108,9 @@ class Supervisor:
         self.topo = topo
         self.echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
         self.run_id = secrets.token_hex(4)
+        # every control request carries it: over tcp anyone who can reach a port could
+        # otherwise query, reconfigure or stop an actor
+        self.token = secrets.token_hex(16)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         self.rundir = run_directory(runs_root(runs_dir), topo.name, f"{stamp}-{self.run_id}")
         self.sockdir = socket_root() / f"sebvs-{self.run_id}"
@@ -150,6 +157,7 @@ class Supervisor:
                            for i in a.inputs.values()},
                 "outputs": {o: outputs[(a.name, o)] for o in a.cls.outputs},
                 "control": self._endpoint(f"{a.name}.ctl"),
+                "token": self.token,
                 "telemetry": self._endpoint(f"{a.name}.tel"),
                 "supervisor": self.supervisor_endpoint,
                 "supervisor_pid": os.getpid(),
@@ -180,7 +188,7 @@ class Supervisor:
         self.pull.bind(self.supervisor_endpoint)
         self.info = {
             "name": self.topo.name, "run_id": self.run_id, "topology": str(self.topo.path),
-            "rundir": str(self.rundir), "sockdir": str(self.sockdir),
+            "rundir": str(self.rundir), "sockdir": str(self.sockdir), "token": self.token,
             "supervisor_pid": os.getpid(), "clock": self.topo.clock,
             "started_at": datetime.now().isoformat(timespec="seconds"),
             "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
@@ -202,7 +210,7 @@ class Supervisor:
         self._write_info()
         self._await_ready()
         for p in self.procs.values():
-            self._command(p.name, {"cmd": "start"})
+            self.request(p.name, {"cmd": "start"})
         self.status = "running"
         self.stalls = StallWatch({(a.name, i.name): (i.producer, i.output)
                                   for a in self.topo.active.values()
@@ -216,7 +224,7 @@ class Supervisor:
             return
         self._next_stall_check = time.monotonic() + STALL_PERIOD_S
         replies = query_all(self.ctx, {n: s["control"] for n, s in self.specs.items()},
-                            {"cmd": "stats"})
+                            {"cmd": "stats", "token": self.token})
         found = self.stalls.update({n: r["result"] for n, r in replies.items()
                                     if isinstance(r, dict) and r.get("ok")})
         for text in found:
@@ -266,8 +274,10 @@ class Supervisor:
                     ready.append(p.name)
         return ready
 
-    def _command(self, actor: str, request: dict, timeout_s: float = 2.0) -> dict | None:
-        return control_request(self.ctx, self.specs[actor]["control"], request, timeout_s)
+    def request(self, actor: str, request: dict, timeout_s: float = 2.0) -> dict | None:
+        """One control request to an actor of this run (its reply, or None on time-out)."""
+        return control_request(self.ctx, self.specs[actor]["control"], request, timeout_s,
+                               token=self.token)
 
     def _reap(self) -> list[_Proc]:
         dead = []
@@ -319,7 +329,7 @@ class Supervisor:
                     return self.stop()
             for name in self._poll_ready(0) if any(not p.ready for p in self.procs.values()) \
                     else []:
-                self._command(name, {"cmd": "start"})  # a restarted actor joins the clock
+                self.request(name, {"cmd": "start"})  # a restarted actor joins the clock
             self._check_stalls()
             if on_poll is not None:
                 on_poll(POLL_S)
@@ -341,7 +351,7 @@ class Supervisor:
             s = self.ctx.socket(zmq.DEALER)
             s.setsockopt(zmq.LINGER, 0)
             s.connect(self.specs[p.name]["control"])
-            s.send(msgpack.packb({"cmd": "stop"}))
+            s.send(msgpack.packb({"cmd": "stop", "token": self.token}))
             sockets.append(s)
         for sig, grace in ((None, STOP_GRACE_S), (signal.SIGTERM, TERM_GRACE_S),
                            (signal.SIGKILL, 1.0)):
@@ -380,8 +390,14 @@ class Supervisor:
 
 
 def control_request(ctx: zmq.Context, endpoint: str, request: dict,
-                    timeout_s: float = 2.0) -> dict | None:
-    """One request/reply on an actor's control socket; None when it does not answer in time."""
+                    timeout_s: float = 2.0, *, token: str | None = None) -> dict | None:
+    """One request/reply on an actor's control socket; None when it does not answer in time.
+
+    ``token`` is the run's (Supervisor.token, run.json "token"): actors refuse requests
+    without it.
+    """
+    if token is not None:
+        request = {**request, "token": token}
     s = ctx.socket(zmq.DEALER)
     s.setsockopt(zmq.LINGER, 0)
     try:
