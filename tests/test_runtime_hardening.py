@@ -301,3 +301,51 @@ def test_control_needs_the_runs_token_and_run_json_is_private(tmp_path):
         assert sup.request("relay", {"cmd": "ping"})["ok"]
     finally:
         sup.stop()
+
+
+@pytest.mark.parametrize("max_bytes, delivered", [(4096, False), (1 << 20, True)])
+def test_an_input_refuses_messages_over_its_max_bytes(tmp_path, max_bytes, delivered):
+    import time
+
+    from sebvs.runtime.supervisor import Supervisor
+    from sebvs.runtime.topology import load_topology
+    topo = tmp_path / "big.toml"
+    # over tcp every array travels inline: 64 x 48 RGB is a 9,216-byte frame
+    topo.write_text(f"""
+[topology]
+name = "big"
+transport = "tcp"
+[actors.source]
+run = "actors.synthetic:PatternSource"
+width = 64
+height = 48
+rate_hz = 100.0
+[actors.sink]
+run = "actors.synthetic:Sink"
+inputs = {{ frames = {{ from = "source/frames", max_bytes = {max_bytes} }} }}
+""")
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    try:
+        time.sleep(1.0)
+        handled = sup.request("sink", {"cmd": "stats"})["result"]["inputs"]["frames"]["handled"]
+        assert sup.procs["sink"].popen.poll() is None
+    finally:
+        sup.stop()
+    assert (handled > 10) if delivered else handled == 0
+
+
+def test_max_bytes_is_validated_with_the_topology(tmp_path):
+    from sebvs.runtime.topology import TopologyError, load_topology
+    topo = tmp_path / "bad.toml"
+    topo.write_text("""
+[topology]
+name = "bad"
+[actors.source]
+run = "actors.synthetic:PatternSource"
+[actors.sink]
+run = "actors.synthetic:Sink"
+inputs = { frames = { from = "source/frames", max_bytes = 10 } }
+""")
+    with pytest.raises(TopologyError, match="max_bytes"):
+        load_topology(topo)

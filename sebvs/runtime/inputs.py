@@ -28,8 +28,9 @@ TELEMETRY_MAX_RECORDS = 4096     # per period; beyond it records are counted, no
 HANDLER_WINDOW = 2048            # handler times kept for `stats`
 DRAIN_BATCH = 64                 # messages per reader callback before yielding to the loop
 DRAIN_BUDGET_NS = 5_000_000      # ... or this much handler time, whichever comes first
-# ZeroMQ's MAXMSGSIZE per input: large arrays travel in shared memory, so only tcp inputs
-# carry them inline; a peer sending more is disconnected by ZeroMQ before we allocate
+# ZeroMQ's MAXMSGSIZE per input when the spec gives none (topology key `max_bytes`): large
+# arrays travel in shared memory, so only tcp inputs carry them inline; a peer sending more
+# is disconnected by ZeroMQ before we allocate
 MAX_MESSAGE_BYTES = 256 << 20
 # a forward jump larger than this is not a loss (a queue holds at most 100,000) but a
 # forged or corrupt seq: counted apart, so `dropped_gap` stays a count of lost messages

@@ -153,6 +153,7 @@ class Supervisor:
                 "consumed": [o for o in a.cls.outputs if topo.consumers(a.name, o)],
                 "inputs": {i.name: {"endpoint": outputs[(i.producer, i.output)]["endpoint"],
                                     "topic": f"{i.producer}/{i.output}", "queue": i.queue,
+                                    "max_bytes": i.max_bytes,
                                     "hwm": 2 if i.queue == "latest" else i.queue}
                            for i in a.inputs.values()},
                 "outputs": {o: outputs[(a.name, o)] for o in a.cls.outputs},

@@ -19,6 +19,9 @@ from .params import Range, build_params, clip, coerce_param, short_repr
 
 MAX_QUEUE = 100_000
 QUEUE = Union[Annotated[int, Range(ge=1, le=MAX_QUEUE)], Literal["latest"]]
+# one message on an input, in bytes (ZeroMQ's MAXMSGSIZE): 256 MiB unless an input raises it
+MAX_BYTES = Annotated[int, Range(ge=1024, le=1 << 40)]
+DEFAULT_MAX_BYTES = 256 << 20
 # [topology] keys, checked by the same rules as actor parameters
 TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
                  "seed": Annotated[int, Range(ge=0)], "restart": Literal["stop", "restart"],
@@ -41,6 +44,7 @@ class InputSpec:
     producer: str
     output: str
     queue: int | str = DEFAULT_QUEUE   # N messages, or "latest"
+    max_bytes: int = DEFAULT_MAX_BYTES  # one message; ZeroMQ drops a peer that sends more
 
     @property
     def source(self) -> str:
@@ -155,22 +159,26 @@ def _first_line(exc: BaseException) -> str:
     return clip(lines[0]) if lines else ""
 
 
-def _parse_input(spec: Any, where: str, default_queue: int | str) -> tuple[str, int | str]:
+def _parse_input(spec: Any, where: str,
+                 default_queue: int | str) -> tuple[str, int | str, int]:
+    """(source, queue, max_bytes) of one input: "actor/output" or a table."""
     if isinstance(spec, str):
-        return spec, default_queue
+        return spec, default_queue, DEFAULT_MAX_BYTES
     if isinstance(spec, dict):
-        unknown = set(spec) - {"from", "queue"}
+        unknown = set(spec) - {"from", "queue", "max_bytes"}
         if unknown:
             raise TopologyError(f"{where}: unknown key {short_repr(sorted(unknown)[0])} "
-                                f"(from, queue)")
+                                f"(from, queue, max_bytes)")
         if not isinstance(spec.get("from"), str):
             raise TopologyError(f"{where}: 'from' = \"actor/output\" is required")
         try:
             queue = coerce_param(QUEUE, spec.get("queue", default_queue),
                                  where=f"{where} key 'queue'")
+            max_bytes = coerce_param(MAX_BYTES, spec.get("max_bytes", DEFAULT_MAX_BYTES),
+                                     where=f"{where} key 'max_bytes'")
         except ValueError as exc:
             raise TopologyError(str(exc)) from None
-        return spec["from"], queue
+        return spec["from"], queue, max_bytes
     raise TopologyError(f"{where}: expected \"actor/output\" or a table, "
                         f"got {short_repr(spec)}")
 
@@ -265,11 +273,11 @@ def build_topology(doc: dict, path: Path) -> Topology:
             if inp not in cls.inputs:
                 raise TopologyError(f"{iwhere}: {table['run']} has no input {short_repr(inp)} "
                                     f"(inputs: {', '.join(cls.inputs) or 'none'})")
-            source, queue = _parse_input(spec, iwhere, topo.queue)
+            source, queue, max_bytes = _parse_input(spec, iwhere, topo.queue)
             producer, _, output = source.partition("/")
             if not producer or not output:
                 raise TopologyError(f"{iwhere}: {short_repr(source)} is not \"actor/output\"")
-            inputs[inp] = InputSpec(inp, producer, output, queue)
+            inputs[inp] = InputSpec(inp, producer, output, queue, max_bytes)
         params = {k: v for k, v in table.items() if k not in ACTOR_RESERVED}
         try:
             build_params(cls.Params, params, where=where)
