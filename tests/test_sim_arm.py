@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco
-from sebvs.sim.arm import (BELT_TOP, CLEARANCE, HOME_POSE, JOINTS, STROKE, Y_LIMIT,
-                           dh_forward)
+from sebvs.sim.arm import CLEARANCE, HOME_POSE, Y_LIMIT
+from sebvs.sim.arm_model import BELT_TOP, JOINTS, STROKE, dh_forward
 from sebvs.sim.ik import mat_to_rpy, rpy_to_mat
 from sebvs.sim.render import FrameRenderer
 from sebvs.sim.scene import INTEGRATORS
@@ -354,7 +354,7 @@ def test_cubes_rest_on_the_belt_at_their_drawn_size():
 
 
 def test_a_running_belt_moves_its_skin_and_the_texture_wraps_seamlessly():
-    from sebvs.sim.arm import SKIN_PERIOD
+    from sebvs.sim.arm_model import SKIN_PERIOD
     scene, model, data = build(conveyor="moving", belt_speed=0.1, objects=1)
     y0 = data.mocap_pos[scene.skin, 1]
     settle(scene, model, data, 0.5)

@@ -40,7 +40,7 @@ def test_arm_plausibility_passes_the_physical_and_flags_the_impossible():
     point, one faster than belt and fall can make it, or the tcp off HOME is not."""
     import mujoco
     import numpy as np
-    from sebvs.sim.arm import BELT_TOP
+    from sebvs.sim.arm_model import BELT_TOP
     model, data, _, _, plausible = st._arm({"timestep": 0.002, "integrator": "discrete"})
     scene = plausible.scene
     adr, half = scene.cube_qadr[0], scene.halves[0]

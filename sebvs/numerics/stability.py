@@ -51,7 +51,8 @@ from typing import Callable
 import numpy as np
 
 from sebvs.sim import make_scene
-from sebvs.sim.arm import CONVEYOR_SOLIDS, HOME_POSE
+from sebvs.sim.arm import HOME_POSE
+from sebvs.sim.arm_model import CONVEYOR_SOLIDS
 from sebvs.sim.scene import INTEGRATORS as _ALL
 from sebvs.sim.stability import Limits, StabilityMonitor
 
