@@ -41,7 +41,8 @@ def test_arm_plausibility_passes_the_physical_and_flags_the_impossible():
     import mujoco
     import numpy as np
     from sebvs.sim.arm_model import BELT_TOP
-    model, data, _, _, plausible = st._arm({"timestep": 0.002, "integrator": "discrete"})
+    from sebvs.numerics.arm_cases import arm_case
+    model, data, _, _, plausible = arm_case({"timestep": 0.002, "integrator": "discrete"})
     scene = plausible.scene
     adr, half = scene.cube_qadr[0], scene.halves[0]
     dof = model.jnt_dofadr[model.body_jntadr[scene.cube_body[0]]]

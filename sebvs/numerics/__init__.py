@@ -6,7 +6,8 @@ wp_events       event-stream errors (counts per tick, timestamps) against a refe
 wp_events_run   the event study's motions: dvs sampling rate against a fast-sampled one
 wp_policy       policy input size against validation error and inference time
 sweep           what every stability case shares: the case, its classes, exceptions
-stability       the physics cases and the whole sweep (physics + emulator)
+stability       the grids, the nav and belt cases, and the whole sweep
+arm_cases       the arm scene's cases and their plausibility test
 dvs_cases       the emulator's extreme cases
 dvs_adapter     the one place the studies touch the emulator's API
 
