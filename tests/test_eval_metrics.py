@@ -27,6 +27,30 @@ def test_nav_metrics_hand_computed():
     assert m.duration_s == 12.5
 
 
+def test_strict_rate_and_episode_success_hand_computed():
+    # 160x160: the paper's radius is 50 px, the strict one 12.5 px
+    errors = [0, 10, 12.5, 13, 40, 50, 51, 60, 70, 80]
+    centroids = [[80 + e, 80] for e in errors]
+    m = nav_episode_metrics(centroids, [10] * 10, [True] * 10, (160, 160), 1.0)
+    assert m.success == 0.6 and m.strict_success == 0.3
+    assert m.episode_success == 0.0                       # 60 % < 90 %
+    near = nav_episode_metrics([[80, 80]] * 9 + [[0, 0]], [10] * 10, [True] * 10,
+                               (160, 160), 1.0)
+    assert near.success == 0.9 and near.episode_success == 1.0   # exactly 90 % counts
+    hidden = nav_episode_metrics([[80, 80]] * 10, [10] * 10, [True] * 8 + [False] * 2,
+                                 (160, 160), 1.0)
+    assert hidden.episode_success == 0.0                  # frames out of view are misses
+
+
+def test_strict_rate_never_exceeds_the_paper_rate():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        n = int(rng.integers(1, 40))
+        m = nav_episode_metrics(rng.uniform(0, 160, (n, 2)), np.ones(n),
+                                rng.random(n) < 0.8, (160, 160), 1.0)
+        assert m.strict_success <= m.success
+
+
 def test_nav_metrics_never_visible():
     m = nav_episode_metrics([[1, 1]], [5], [False], (160, 160), 1.0)
     assert m.success == 0 and math.isnan(m.centroid_error_px)

@@ -22,6 +22,35 @@ def test_aggregate_nav_pools_frames_exactly():
     assert a["success_ci95"][0] < 0.75 < a["success_ci95"][1]
 
 
+def test_aggregate_nav_episode_success_and_strict_rate():
+    # 10 of 10 frames at the centre: success, strict and episode success all 1; 5 of 10:
+    # the episode fails, the frames at 70 px are outside both radii
+    a = aggregate_nav([nav_episode("rgb", 0, 10), nav_episode("rgb", 1, 5)])
+    assert a["strict_success"] == pytest.approx(15 / 20)
+    assert a["episode_success"] == 0.5
+    lo, hi = a["episode_success_ci95"]
+    assert lo < 0.5 < hi
+
+
+def test_nav_report_has_the_baseline_row_and_new_columns():
+    eps = [nav_episode(m, s, k) for s in range(3)
+           for m, k in (("expert", 10), ("no_action", 2), ("rgb", 9))]
+    text = render_report({"task": "nav", "episodes": eps})
+    rows = [line for line in text.splitlines() if line.startswith("| ")]
+    assert "Strict (% within 50 px)" in rows[0] and "Episode success" in rows[0]
+    names = [r.split("|")[1].strip() for r in rows[1:]]
+    assert names == ["Expert (reference)", "No action (baseline)", "RGB-only"]
+    assert "| No action (baseline) | 3 |" in text and "| 20.0 [" in text
+
+
+def test_report_reads_results_written_before_the_new_rates():
+    ep = nav_episode("rgb", 0, 10)
+    for key in ("strict_success", "episode_success"):
+        del ep["metrics"][key]
+    text = render_report({"task": "nav", "episodes": [ep]})
+    assert "| RGB-only | 1 |" in text and "| - | - [-, -] |" in text
+
+
 def test_nav_report_renders_tables_and_paired_comparison(tmp_path):
     eps = []
     for seed in range(6):

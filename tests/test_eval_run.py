@@ -1,7 +1,9 @@
-"""A short closed-loop evaluation end to end: expert and a tiny policy, 2 episodes, real runs,
-with episode videos."""
+"""A short closed-loop evaluation end to end: expert, the no-action baseline and a tiny
+policy, 2 episodes, real runs, with episode videos."""
 import json
 import re
+
+import numpy as np
 
 from sebvs.eval.run import EvalPlan, evaluate
 from sebvs.eval.video import count_frames
@@ -21,30 +23,39 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     results = evaluate(plan)
     eps = results["episodes"]
     assert {(e["modality"], e["condition"]) for e in eps} == {("expert", "nominal"),
+                                                              ("no_action", "nominal"),
                                                               ("rgb+event", "nominal")}
     by_mod = {}
     for e in eps:
         by_mod.setdefault(e["modality"], []).append(e["seed"])
     assert len(by_mod["expert"]) == 2
-    assert by_mod["expert"] == by_mod["rgb+event"]         # the same seeded episodes
+    assert by_mod["expert"] == by_mod["rgb+event"] == by_mod["no_action"]   # same episodes
     policy_eps = [e for e in eps if e["modality"] == "rgb+event"]
     assert all(len(e["inference_ms"]) > 5 for e in policy_eps)
     report = (tmp_path / "eval" / "report.md").read_text()
     assert "## Condition: nominal" in report and "| RGB+Event | 2 |" in report
     assert "| Expert (reference) | 2 |" in report
+    assert "| No action (baseline) | 2 |" in report
+    # the baseline ran without a policy, emulator or accumulator: they were pruned
+    baseline_run = next(p for p in (tmp_path / "eval" / "runs").glob("nav_policy-*")
+                        if (p / "logs" / "baseline.log").exists())
+    assert not (baseline_run / "logs" / "policy.log").exists()
+    assert not (baseline_run / "logs" / "emulator.log").exists()
     for png in ("success.png", "centroid_error.png", "latency.png"):
         assert (tmp_path / "eval" / png).stat().st_size > 5000
     saved = json.loads((tmp_path / "eval" / "results.json").read_text())
-    assert len(saved["episodes"]) == 4
+    assert len(saved["episodes"]) == 6
     # one video per episode, one frame per control tick the tracker counted
-    videos = [f"videos/nominal__{m}__ep{k}.mp4" for m in ("expert", "rgb_event") for k in (0, 1)]
+    videos = [f"videos/nominal__{m}__ep{k}.mp4" for m in ("expert", "no_action", "rgb_event")
+              for k in (0, 1)]
     assert saved["videos"] == videos
     ticks = [len(e["trace_error_px"]) for e in eps]
     assert ticks[0] == 16                               # 1.5 s at 10 Hz, both ends
     assert [count_frames(tmp_path / "eval" / v) for v in videos] == ticks
     # the policy run's writer had the event frames: all but (under load) the run's very
     # last tick, whose action the sim does not wait for, carry the overlay
-    log = next((tmp_path / "eval" / "runs").glob("nav_policy-*/logs/video.log")).read_text()
+    log = next(p for p in (tmp_path / "eval" / "runs").glob("nav_policy-*/logs/video.log")
+               if (p.parent / "policy.log").exists()).read_text()
     assert "events overlaid" in log
     assert int(re.search(r"'without_overlay': (\d+)", log).group(1)) <= 1
     # resume: everything is finished, so nothing runs again and the results are the same
@@ -69,7 +80,13 @@ def test_short_arm_evaluation_grasps_and_reports(tmp_path):
                     checkpoints=str(tmp_path / "ckpt"), extra=["sim.episode_s=0.5"])
     results = evaluate(plan)
     eps = {e["modality"]: e for e in results["episodes"]}
-    assert set(eps) == {"expert", "rgb"} and eps["expert"]["seed"] == eps["rgb"]["seed"]
+    assert set(eps) == {"expert", "no_action", "rgb"}
+    assert eps["expert"]["seed"] == eps["rgb"]["seed"] == eps["no_action"]["seed"]
+    # the baseline stays home every tick, so it grasps nothing
+    from sebvs.sim.arm import HOME_POSE
+    baseline = eps["no_action"]["metrics"]
+    assert np.allclose(baseline["pred"], [HOME_POSE] * len(baseline["pred"]), atol=1e-5)
+    assert baseline["grasp_success"] in (False, None)
     assert all(e["scenario"] == "multi" for e in eps.values())
     expert = eps["expert"]["metrics"]
     assert len(expert["pred"]) == 6 and expert["scenario"] == "multi"    # ticks 0..5

@@ -14,6 +14,7 @@ def _cmd_eval(args) -> int:
                     scenarios=scenarios,
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
                     seed=args.seed, checkpoints=args.checkpoints, expert=not args.no_expert,
+                    baseline=not args.no_baseline,
                     extra=args.set, video=args.video, video_episodes=args.video_episodes)
     try:
         plan.validate()
@@ -45,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS
     e = sub.add_parser(
         "eval", help="closed-loop evaluation of policies against the expert",
-        description="Run every modality (and the expert, as the reference row) through the "
+        description="Run every modality (the expert as the reference row and a no-action "
+                    "baseline beside it) through the "
                     "real topology on the same seeded episodes, per condition (and, for the "
                     "arm, per single- or multi-object scenario), and write report.md (the "
                     "paper's Table 4 or 5), results.json and plots. The arm's episodes end "
@@ -66,6 +68,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="directory with <task>-<modality>.pt checkpoints")
     e.add_argument("--seed", type=int, default=1000, help="topology seed (episode seeds follow)")
     e.add_argument("--no-expert", action="store_true", help="leave out the expert reference row")
+    e.add_argument("--no-baseline", action="store_true",
+                   help="leave out the no-action row (the robot holds still, the arm stays "
+                        "home, on the same seeds): what each metric gives for free")
     e.add_argument("--video", action="store_true",
                    help="also write episode videos to OUT/videos/<condition>[__<scenario>]__"
                         "<modality>__ep<k>.mp4 (rgb+event as rgb_event): per control tick the "

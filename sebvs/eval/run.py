@@ -1,8 +1,9 @@
 """`sebvs eval`: closed-loop evaluation through the real topology, every actor in the loop.
 
-For each condition and each modality (plus the expert as the reference row) one run of
-the policy topology plays N seeded episodes: the same topology seed gives every modality,
-and the expert, the same episode seeds and so the same target trajectories. The tracker
+For each condition and each modality (plus the expert as the reference row and the
+no-action baseline, actors/baseline.py, as the floor) one run of the policy topology plays
+N seeded episodes: the same topology seed gives every modality, the expert and the
+baseline the same episode seeds and so the same target trajectories. The tracker
 sink appends one JSON line per finished episode; this module only chooses overrides,
 supervises the runs with a progress bar, and aggregates.
 
@@ -81,6 +82,7 @@ TASKS = {
                     "position error against the task's pose (mm)"),
 }
 MODALITIES = ("rgb", "event", "rgb+event")
+BASELINE = "no_action"
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
 
@@ -114,6 +116,7 @@ class EvalPlan:
     seed: int = 1000
     checkpoints: str = "checkpoints"
     expert: bool = True
+    baseline: bool = True                   # the no-action row
     scenarios: list[str] | None = None      # None: every scenario of the task
     policy_topology: Path | None = None     # None: the task's
     expert_topology: Path | None = None
@@ -149,7 +152,8 @@ class EvalPlan:
             raise ValueError("--video-episodes must be at least 1")
 
     def runs(self) -> list[Run]:
-        mods = (["expert"] if self.expert else []) + list(self.modalities)
+        mods = ((["expert"] if self.expert else []) + ([BASELINE] if self.baseline else [])
+                + list(self.modalities))
         return [Run(c, s, m) for c in self.conditions for s in self.scenarios for m in mods]
 
     def episode_file(self, run: Run) -> Path:
@@ -208,6 +212,14 @@ class EvalPlan:
                   *self.video_overrides(run)]
         if run.modality == "expert":
             return self.expert_topology, common + self.shared_sim() + self.extra
+        if run.modality == BASELINE:
+            # the policy topology with the baseline answering each tick instead: the policy,
+            # emulator and accumulator then feed nobody and are pruned
+            sets = ['baseline.run="actors.baseline:NoAction"', f'baseline.task="{self.task}"',
+                    'baseline.inputs={rgb={from="camera/rgb", queue=64}}',
+                    'sim.inputs.action="baseline/action"',
+                    'tracker.inputs.action={from="baseline/action", queue=256}']
+            return self.policy_topology, common + sets + self.extra
         sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{run.modality}"]']
         if run.modality == "rgb":   # no events wired: emulator and accumulator are pruned
