@@ -22,24 +22,13 @@ from sebvs.runtime import Range
 from sebvs.runtime.params import REPR_LIMIT, build_params, coerce_param, param_fields
 from sebvs.runtime.supervisor import Supervisor
 from sebvs.runtime.topology import Topology, TopologyError, load_topology
+from tests.test_runtime_topology import BASE
 
 ROOT = Path(__file__).resolve().parents[1]
 SYNTHETIC = ROOT / "topologies" / "synthetic.toml"
 SMALL = ["source.width=64", "source.height=48", "source.rate_hz=100"]
 ACTOR_MODULES = ("accumulator", "bench", "camera", "emulator", "expert", "policy", "recorder",
                  "sim", "synthetic", "tracker", "video")
-
-BASE = """
-[topology]
-name = "t"
-
-[actors.source]
-run = "actors.synthetic:PatternSource"
-
-[actors.sink]
-run = "actors.synthetic:Sink"
-inputs = { frames = "source/frames" }
-"""
 
 
 def write(tmp_path, text, name="topo.toml"):

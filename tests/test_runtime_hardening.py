@@ -223,6 +223,25 @@ def test_reader_refuses_names_outside_the_pattern(name):
         RingReader().view(name, 0, 0, 8, 0)
 
 
+def source_sink_topology(tmp_path, name: str, *, sink_run: str = "actors.synthetic:Sink",
+                         sink_input: str = '"source/frames"', source: str = "",
+                         topology: str = ""):
+    """A PatternSource feeding one sink, with extra TOML lines where a test needs them."""
+    path = tmp_path / f"{name}.toml"
+    path.write_text(f"""
+[topology]
+name = "{name}"
+{topology}
+[actors.source]
+run = "actors.synthetic:PatternSource"
+{source}
+[actors.sink]
+run = "{sink_run}"
+inputs = {{ frames = {sink_input} }}
+""")
+    return path
+
+
 # --------------------------------------------------------------------------- stalls
 def test_stall_watch_reports_once_and_again_after_recovery():
     from sebvs.runtime.stalls import StallWatch
@@ -246,19 +265,8 @@ def test_supervisor_reports_an_input_that_stops_receiving(tmp_path, monkeypatch)
     from sebvs.runtime import supervisor
     from sebvs.runtime.topology import load_topology
     monkeypatch.setattr(supervisor, "STALL_PERIOD_S", 0.3)
-    topo = tmp_path / "stuck.toml"
-    topo.write_text("""
-[topology]
-name = "stuck"
-[actors.source]
-run = "actors.synthetic:PatternSource"
-width = 16
-height = 16
-rate_hz = 200.0
-[actors.sink]
-run = "tests.runtime_actors:StuckSink"
-inputs = { frames = "source/frames" }
-""")
+    topo = source_sink_topology(tmp_path, "stuck", sink_run="tests.runtime_actors:StuckSink",
+                                source="width = 16\nheight = 16\nrate_hz = 200.0")
     messages = []
     sup = supervisor.Supervisor(load_topology(topo), runs_dir=tmp_path, echo=messages.append)
     sup.start()
@@ -309,21 +317,11 @@ def test_an_input_refuses_messages_over_its_max_bytes(tmp_path, max_bytes, deliv
 
     from sebvs.runtime.supervisor import Supervisor
     from sebvs.runtime.topology import load_topology
-    topo = tmp_path / "big.toml"
     # over tcp every array travels inline: 64 x 48 RGB is a 9,216-byte frame
-    topo.write_text(f"""
-[topology]
-name = "big"
-transport = "tcp"
-[actors.source]
-run = "actors.synthetic:PatternSource"
-width = 64
-height = 48
-rate_hz = 100.0
-[actors.sink]
-run = "actors.synthetic:Sink"
-inputs = {{ frames = {{ from = "source/frames", max_bytes = {max_bytes} }} }}
-""")
+    topo = source_sink_topology(
+        tmp_path, "big", topology='transport = "tcp"',
+        source="width = 64\nheight = 48\nrate_hz = 100.0",
+        sink_input=f'{{ from = "source/frames", max_bytes = {max_bytes} }}')
     sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
     sup.start()
     try:
@@ -337,15 +335,7 @@ inputs = {{ frames = {{ from = "source/frames", max_bytes = {max_bytes} }} }}
 
 def test_max_bytes_is_validated_with_the_topology(tmp_path):
     from sebvs.runtime.topology import TopologyError, load_topology
-    topo = tmp_path / "bad.toml"
-    topo.write_text("""
-[topology]
-name = "bad"
-[actors.source]
-run = "actors.synthetic:PatternSource"
-[actors.sink]
-run = "actors.synthetic:Sink"
-inputs = { frames = { from = "source/frames", max_bytes = 10 } }
-""")
+    topo = source_sink_topology(tmp_path, "bad",
+                                sink_input='{ from = "source/frames", max_bytes = 10 }')
     with pytest.raises(TopologyError, match="max_bytes"):
         load_topology(topo)
