@@ -21,12 +21,13 @@ import json
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
 from sebvs.metrics import (arm_metrics, centre_error_px, end_decision_correct,
                                 grasp_success, nav_episode_metrics)
-from sebvs.runtime import Actor, Message
+from sebvs.runtime import Actor, Message, Range
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
 
@@ -40,7 +41,8 @@ class EpisodeTracker(Actor):
     class Params:
         path: str = ""                        # JSON lines, one per finished episode
         label: dict = field(default_factory=dict)   # copied into every line (condition...)
-        control_hz: float = 20.0              # for the trial duration of an episode
+        # for the trial duration of an episode (a divisor: 1 mHz at the least)
+        control_hz: Annotated[float, Range(ge=1e-3)] = 20.0
 
     async def setup(self) -> None:
         self.frames: dict[int, list] = defaultdict(list)   # episode -> [(tick, truth, t_ep)]

@@ -27,8 +27,8 @@ from tests.test_runtime_topology import BASE
 ROOT = Path(__file__).resolve().parents[1]
 SYNTHETIC = ROOT / "topologies" / "synthetic.toml"
 SMALL = ["source.width=64", "source.height=48", "source.rate_hz=100"]
-ACTOR_MODULES = ("accumulator", "bench", "camera", "emulator", "expert", "policy", "recorder",
-                 "sim", "synthetic", "tracker", "video")
+ACTOR_MODULES = ("accumulator", "baseline", "bench", "camera", "emulator", "expert", "policy",
+                 "recorder", "sim", "synthetic", "tracker", "video")
 
 
 def write(tmp_path, text, name="topo.toml"):
