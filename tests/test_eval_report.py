@@ -101,6 +101,34 @@ def test_arm_success_plot_with_certain_outcomes(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 5000
 
 
+def test_nav_report_breaks_down_per_scene_variant(tmp_path):
+    """The same seeds in both variants: one table each, never pooled, and the paired
+    comparison pairs within a variant (pooled, the seeds would collide)."""
+    eps = []
+    for scen, good in (("indoor", 10), ("outdoor", 3)):
+        for seed in range(4):
+            for mod, k in (("no_action", 2), ("rgb", good), ("rgb+event", 10)):
+                eps.append({**nav_episode(mod, seed, k), "scenario": scen})
+    text = render_report({"task": "nav", "split": "test", "episodes": eps})
+    indoor, outdoor = text.split("## Condition: nominal, outdoor")
+    assert "## Condition: nominal, indoor" in indoor
+    assert "| RGB-only | 4 | 0.0 ± 0.0 |" in indoor and "| RGB-only | 4 |" in outdoor
+    assert "| RGB+Event vs RGB-only | 4 | +0.0 |" in indoor
+    assert "| RGB+Event vs RGB-only | 4 | +70.0 |" in outdoor
+    assert "| No action (baseline) | 4 |" in indoor and "| No action (baseline) | 4 |" in outdoor
+    plot_success({"task": "nav", "episodes": eps}, tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 5000
+
+
+def test_report_flags_a_custom_seed_in_the_train_range():
+    eps = [nav_episode("rgb", 0, 10)]
+    note = "lies in the train range"
+    assert note in render_report({"task": "nav", "split": "custom", "seed": 3, "episodes": eps})
+    for split, seed in (("custom", 2000), ("dev", 1000), ("custom", 150_000)):
+        assert note not in render_report({"task": "nav", "split": split, "seed": seed,
+                                          "episodes": eps})
+
+
 def test_unknown_task_is_an_error():
     with pytest.raises(ValueError, match="unknown task"):
         render_report({"task": "fly", "episodes": []})

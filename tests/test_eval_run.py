@@ -1,10 +1,14 @@
 """A short closed-loop evaluation end to end: expert, the no-action baseline and a tiny
-policy, 2 episodes, real runs, with episode videos."""
+policy, 2 episodes, real runs, with episode videos; the held-out split over both nav
+scene variants; how a plan picks its seeds."""
 import json
 import re
 
 import numpy as np
+import pytest
 
+from sebvs.cli import main
+from sebvs.data.splits import SPLITS
 from sebvs.eval.run import EvalPlan, evaluate
 from sebvs.eval.video import count_frames
 from tests.policy_data import make_dataset
@@ -18,7 +22,8 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     train(data, tmp_path / "ckpt", "nav", ["rgb+event"], progress=False, log=lambda *a: None,
           epochs=1, batch=8, norm=Normalisation(size=32))
     plan = EvalPlan(task="nav", modalities=["rgb+event"], conditions=["nominal"], episodes=2,
-                    out=tmp_path / "eval", checkpoints=str(tmp_path / "ckpt"),
+                    scenarios=["indoor"], out=tmp_path / "eval",
+                    checkpoints=str(tmp_path / "ckpt"),
                     extra=["sim.episode_s=1.5"], video=True, video_episodes=2)
     results = evaluate(plan)
     eps = results["episodes"]
@@ -33,7 +38,7 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     policy_eps = [e for e in eps if e["modality"] == "rgb+event"]
     assert all(len(e["inference_ms"]) > 5 for e in policy_eps)
     report = (tmp_path / "eval" / "report.md").read_text()
-    assert "## Condition: nominal" in report and "| RGB+Event | 2 |" in report
+    assert "## Condition: nominal, indoor" in report and "| RGB+Event | 2 |" in report
     assert "| Expert (reference) | 2 |" in report
     assert "| No action (baseline) | 2 |" in report
     # the baseline ran without a policy, emulator or accumulator: they were pruned
@@ -46,8 +51,8 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     saved = json.loads((tmp_path / "eval" / "results.json").read_text())
     assert len(saved["episodes"]) == 6
     # one video per episode, one frame per control tick the tracker counted
-    videos = [f"videos/nominal__{m}__ep{k}.mp4" for m in ("expert", "no_action", "rgb_event")
-              for k in (0, 1)]
+    videos = [f"videos/nominal__indoor__{m}__ep{k}.mp4"
+              for m in ("expert", "no_action", "rgb_event") for k in (0, 1)]
     assert saved["videos"] == videos
     ticks = [len(e["trace_error_px"]) for e in eps]
     assert ticks[0] == 16                               # 1.5 s at 10 Hz, both ends
@@ -100,3 +105,92 @@ def test_short_arm_evaluation_grasps_and_reports(tmp_path):
     assert "| Expert (reference) | 1 | 6 |" in report and "| RGB-only | 1 | 6 |" in report
     assert (tmp_path / "eval" / "pose_error.png").stat().st_size > 5000
     assert (tmp_path / "eval" / "episodes" / "moving__multi__expert.jsonl").exists()
+
+
+def test_test_split_runs_reserved_seeds_over_both_nav_variants(tmp_path):
+    """`--split test`: the topology seed is the reserved range's first, every row plays the
+    same episodes in the indoor and the outdoor scene, and holding still scores below the
+    expert on them."""
+    from actors.sim import episode_seed
+    from sebvs.runtime.topology import load_topology
+
+    plan = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=2,
+                    split="test", out=tmp_path / "eval", extra=["sim.episode_s=3.0"])
+    results = evaluate(plan)
+    test = SPLITS["test"]
+    assert results["split"] == "test" and results["seed"] == test.first
+    assert results["seed_range"] == [test.first, test.last]
+    assert results["scenarios"] == ["indoor", "outdoor"]
+    # the episode seeds are those the sim derives from the reserved topology seed
+    sim_seed = load_topology(plan.expert_topology, [f"topology.seed={test.first}"]) \
+        .actor_seed("sim")
+    expected = [episode_seed(sim_seed, k) for k in range(2)]
+    eps = results["episodes"]
+    for scen in ("indoor", "outdoor"):
+        for mod in ("expert", "no_action"):
+            assert [e["seed"] for e in eps
+                    if e["scenario"] == scen and e["modality"] == mod] == expected
+    # each scenario's runs really had that scene variant
+    sim_logs = [p.read_text() for p in (tmp_path / "eval" / "runs").glob("*/logs/sim.log")]
+    assert len(sim_logs) == 4
+    assert sum("'variant': 'indoor'" in t for t in sim_logs) == 2
+    assert sum("'variant': 'outdoor'" in t for t in sim_logs) == 2
+    for scen in ("indoor", "outdoor"):
+        m = {mod: [e["metrics"] for e in eps if e["scenario"] == scen
+                   and e["modality"] == mod] for mod in ("expert", "no_action")}
+        assert all(x["strict_success"] <= x["success"] for ms in m.values() for x in ms)
+        # the target walks away from a robot that holds still; the expert follows it
+        assert all(b["success"] < a["success"] for a, b in zip(m["expert"], m["no_action"]))
+        assert [x["episode_success"] for x in m["no_action"]] == [0.0, 0.0]
+        assert [x["episode_success"] for x in m["expert"]] == [1.0, 1.0]
+    report = (tmp_path / "eval" / "report.md").read_text()
+    assert "## Condition: nominal, indoor" in report
+    assert "## Condition: nominal, outdoor" in report
+    assert "split: test" in report
+
+
+def test_plan_seeds_come_from_the_split_or_are_custom(tmp_path):
+    dev = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=1, out=tmp_path)
+    assert (dev.split, dev.seed) == ("dev", SPLITS["dev"].first) and dev.seed == 1000
+    assert dev.scenarios == ["indoor", "outdoor"]
+    test = EvalPlan(task="arm", modalities=[], conditions=["nominal"], episodes=1,
+                    out=tmp_path, split="test")
+    assert test.seed == SPLITS["test"].first and test.seed_range == SPLITS["test"]
+    custom = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=1,
+                      out=tmp_path, seed=2000)
+    assert custom.split == "custom"
+    assert (custom.seed_range.first, custom.seed_range.last) == (2000, 2000)
+    for kwargs in ({"split": "test", "seed": 5}, {"split": "dev", "seed": SPLITS["test"].first},
+                   {"split": "train"}, {"extra": ["topology.seed=5"]},
+                   {"extra": ['sim.config.variant="outdoor"']}):
+        plan = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=1,
+                        out=tmp_path, **kwargs)
+        with pytest.raises(ValueError):
+            plan.validate()
+    # a seed of the test range may be named explicitly with its split (a second draw)
+    EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=1, out=tmp_path,
+             split="test", seed=SPLITS["test"].first + 7).validate()
+
+
+def test_resume_never_reuses_another_seed_s_episodes(tmp_path):
+    """An output directory reused with another split: the dev episodes on disk are not
+    passed off as test episodes, so the run plays again."""
+    from sebvs.eval.run import Run, _read_episodes
+    plan = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=1,
+                    out=tmp_path, split="test")
+    path = plan.episode_file(Run("nominal", "indoor", "expert"))
+    path.parent.mkdir(parents=True)
+    line = {"episode": 0, "seed": 7, "metrics": {}}
+    path.write_text("\n".join(json.dumps({**line, **extra}) for extra in
+                              ({"topology_seed": 1000}, {})) + "\n")
+    assert _read_episodes(path, plan.seed) == [] and len(_read_episodes(path)) == 2
+    path.write_text(json.dumps({**line, "topology_seed": plan.seed}) + "\n")
+    assert len(_read_episodes(path, plan.seed)) == 1
+
+
+def test_eval_command_refuses_a_seed_outside_its_split(tmp_path, capsys):
+    code = main(["eval", "--task", "nav", "--modalities", "", "--split", "test", "--seed", "5",
+                 "--out", str(tmp_path / "eval")])
+    err = capsys.readouterr().err
+    assert code == 2 and "outside the test split" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "eval").exists()

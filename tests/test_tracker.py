@@ -1,6 +1,5 @@
 """The tracking-metrics sink in a real run: sim + camera + tracker, open loop."""
 import json
-from pathlib import Path
 
 from sebvs.runtime.supervisor import run_topology
 
@@ -48,4 +47,13 @@ def test_tracker_writes_one_line_per_episode(tmp_path):
         assert m["frames"] == 11 and 0 <= m["success"] <= 1
         assert abs(m["duration_s"] - 1.0) < 1e-9
         assert set(r["by_modality"]) == {"none"}
+        # the strict and episode rates, recomputed from the recorded trace: at 64 px the
+        # paper's 200 px radius is 20 px and the strict 50 px one 5 px
+        err = r["trace_error_px"]
+
+        def within(radius):
+            return sum(e is not None and e <= radius for e in err) / len(err)
+        assert m["success"] == within(20.0) and m["strict_success"] == within(5.0)
+        assert m["strict_success"] <= m["success"]
+        assert m["episode_success"] == float(m["success"] >= 0.9)
     assert lines[0]["seed"] != lines[1]["seed"]

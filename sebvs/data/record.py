@@ -4,7 +4,9 @@ Runs the topology with the runtime's Supervisor, overriding the recorder's ``out
 ``episodes`` and ``topology`` params, and shows a progress bar (episodes, frames, speed in
 simulated seconds per wall second) from the recorder's ``stats`` on its control socket.
 The recorder ends the run after N finished episodes; numbering resumes in an existing
-dataset.
+dataset. A topology seed in the test split's range (sebvs/data/splits.py) is refused
+before anything starts: held-out episodes stay held out only if no recording ever makes
+them.
 """
 from __future__ import annotations
 
@@ -72,6 +74,7 @@ def cmd_record(args) -> int:
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
     from .index import DatasetIndex
+    from .splits import check_recording_seed
 
     name = find_recorder(load_topology(args.topology, args.set))
     out = Path(args.out)
@@ -79,6 +82,15 @@ def cmd_record(args) -> int:
                  f"{name}.episodes={args.episodes}",
                  f"{name}.topology={json.dumps(str(Path(args.topology).resolve()))}"]
     topo = load_topology(args.topology, overrides)
+    # refused outright, with no flag to allow it: a test split that one flag can record from
+    # is held out only by convention, and nothing a recording needs lies in that range
+    try:
+        warning = check_recording_seed(topo.seed)
+    except ValueError as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
+    if warning:
+        print(f"sebvs record: warning: {warning}", file=sys.stderr)
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
     echo = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     sup = Supervisor(topo, runs_dir=args.runs_dir, echo=echo)

@@ -13,7 +13,8 @@ def _cmd_eval(args) -> int:
                     conditions=[c for c in args.conditions.split(",") if c],
                     scenarios=scenarios,
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
-                    seed=args.seed, checkpoints=args.checkpoints, expert=not args.no_expert,
+                    split=args.split, seed=args.seed, checkpoints=args.checkpoints,
+                    expert=not args.no_expert,
                     baseline=not args.no_baseline,
                     extra=args.set, video=args.video, video_episodes=args.video_episodes)
     try:
@@ -43,30 +44,40 @@ def _check_checkpoints(plan) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS
+    from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
+    from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS, NAV_SCENARIOS
     e = sub.add_parser(
         "eval", help="closed-loop evaluation of policies against the expert",
         description="Run every modality (the expert as the reference row and a no-action "
-                    "baseline beside it) through the "
-                    "real topology on the same seeded episodes, per condition (and, for the "
-                    "arm, per single- or multi-object scenario), and write report.md (the "
-                    "paper's Table 4 or 5), results.json and plots. The arm's episodes end "
-                    "with the sim grasping the last predicted pose. An interrupted "
-                    "evaluation resumes: finished runs are kept.")
+                    "baseline beside it) through the real topology on the same seeded "
+                    "episodes, per condition and scenario (nav: indoor and outdoor scene; "
+                    "arm: single- or multi-object), and write report.md (the paper's Table 4 "
+                    "or 5), results.json and plots. The arm's episodes end with the sim "
+                    "grasping the last predicted pose. An interrupted evaluation resumes: "
+                    "finished runs are kept.")
     e.add_argument("--task", choices=["nav", "arm"], default="nav")
     e.add_argument("--modalities", default="rgb,event,rgb+event",
                    help="comma-separated: rgb, event, rgb+event")
-    e.add_argument("--episodes", type=int, default=10, help="episodes per modality and condition")
+    e.add_argument("--episodes", type=int, default=10,
+                   help="episodes per modality, condition and scenario")
     e.add_argument("--conditions", default="nominal",
                    help=f"comma-separated; nav: {', '.join(NAV_CONDITIONS)}; arm: "
                         f"{', '.join(ARM_CONDITIONS)}")
     e.add_argument("--scenarios", default="",
-                   help=f"arm only, comma-separated: {', '.join(ARM_SCENARIOS)} (default both)")
+                   help=f"comma-separated; nav: {', '.join(NAV_SCENARIOS)} (the scene "
+                        f"variant); arm: {', '.join(ARM_SCENARIOS)} (default: all of the task's)")
     e.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
                    help="realtime: the policy's latency affects control, as on a robot")
     e.add_argument("--checkpoints", default="checkpoints",
                    help="directory with <task>-<modality>.pt checkpoints")
-    e.add_argument("--seed", type=int, default=1000, help="topology seed (episode seeds follow)")
+    e.add_argument("--split", choices=EVAL_SPLITS, default=None,
+                   help=f"topology seeds of the episodes: dev ({SPLITS['dev']}, the default, "
+                        f"to evaluate and iterate on) or test ({SPLITS['test']}, held out: no "
+                        f"recording may use them); the split's first seed unless --seed")
+    e.add_argument("--seed", type=int, default=None,
+                   help=f"topology seed (episode seeds follow); alone, the split is 'custom'; "
+                        f"default: the first of the split ({DEFAULT_EVAL_SPLIT}: "
+                        f"{SPLITS[DEFAULT_EVAL_SPLIT].first})")
     e.add_argument("--no-expert", action="store_true", help="leave out the expert reference row")
     e.add_argument("--no-baseline", action="store_true",
                    help="leave out the no-action row (the robot holds still, the arm stays "

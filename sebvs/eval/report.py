@@ -2,9 +2,14 @@
 
 ``results`` is what `sebvs eval` writes to results.json::
 
-    {"task": "nav" | "arm", "clock": ..., "episodes": [
-        {"modality": "rgb" | "event" | "rgb+event" | "expert", "condition": "nominal",
-         "seed": 3, "metrics": {...}}, ...]}
+    {"task": "nav" | "arm", "clock": ..., "split": "dev" | "test" | "custom",
+     "seed_range": [first, last], "seed": topology seed, "episodes": [
+        {"modality": "rgb" | "event" | "rgb+event" | "expert" | "no_action",
+         "condition": "nominal", "scenario": "indoor", "seed": 3, "metrics": {...}}, ...]}
+
+An episode's scenario is the nav scene's variant (indoor, outdoor) or the arm's object
+count (single, multi); results written before nav had variants say "single" or nothing,
+and their tables keep the old headings.
 
 Navigation episode metrics are `NavEpisodeMetrics.as_dict()`; arm episode metrics hold
 `scenario` ("single" | "multi"), `pred` and `expert` poses ([T, 6] lists: every tick's
@@ -19,6 +24,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from ..data.splits import SPLITS, split_of
 from ..metrics import arm_metrics, paired_comparison, wilson_interval
 
 MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event")
@@ -35,6 +41,21 @@ def _group(episodes: list[dict], *keys) -> dict:
     for ep in episodes:
         groups[tuple(ep[k] if k in ep else ep["metrics"].get(k) for k in keys)].append(ep)
     return groups
+
+
+def _nav_scenario(ep: dict) -> str:
+    return ep.get("scenario") or "single"
+
+
+def _seed_note(results: dict) -> list[str]:
+    """A custom topology seed inside the recording range evaluates on episodes a policy
+    may have been trained on: say so where the figures are read."""
+    seed = results.get("seed")
+    if results.get("split") != "custom" or not isinstance(seed, int) \
+            or split_of(seed) != "train":
+        return []
+    return [f"Note: topology seed {seed} lies in the train range ({SPLITS['train']}): "
+            f"recordings may hold these very episodes.", ""]
 
 
 def aggregate_nav(episodes: list[dict]) -> dict:
@@ -129,6 +150,7 @@ def render_report(results: dict) -> str:
     meta = {k: v for k, v in results.items() if k not in ("episodes", "task")}
     if meta:
         lines += [", ".join(f"{k}: {v}" for k, v in meta.items()), ""]
+    lines += _seed_note(results)
     if task == "nav":
         lines += ["Success: share of frames with the target within 200 px of the image centre "
                   "at 640 px (radius scaled with resolution); the Wilson interval counts "
@@ -137,8 +159,12 @@ def render_report(results: dict) -> str:
                   "50 px. Episode success: episodes with >= 90 % of their frames within "
                   "200 px (Wilson interval over episodes). No action: the robot holds still "
                   "on the same seeds, what each rate gives for free.", ""]
-        for (cond,), group in sorted(_group(eps, "condition").items()):
-            lines += [f"## Condition: {cond}", "",
+        groups = defaultdict(list)
+        for e in eps:
+            groups[(e["condition"], _nav_scenario(e))].append(e)
+        for (cond, scen), group in sorted(groups.items()):
+            title = cond if scen == "single" else f"{cond}, {scen}"
+            lines += [f"## Condition: {title}", "",
                       "| Model | Episodes | Centroid error (px) | BBox width (px) | "
                       "Success rate (% within threshold) [95% CI] | Strict (% within 50 px) | "
                       "Episode success (%) [95% CI] | Trial duration (s) |",
@@ -199,12 +225,14 @@ def plot_success(results: dict, path) -> None:
 
     eps = results["episodes"]
     nav = results["task"] == "nav"
-    # one bar group per condition (nav) or per condition and scenario (arm: single and
-    # multi-object are separate tables, so they are separate groups here too)
-    keys = ("condition",) if nav else ("condition", "scenario")
-    groups = _group(eps, *keys)
+    # one bar group per table: condition and scenario (nav's scene variant, the arm's one
+    # or three cubes); nav results from before the variants have one scenario, unnamed
+    groups = defaultdict(list)
+    for e in eps:
+        groups[(e["condition"], _nav_scenario(e) if nav else e.get("scenario"))].append(e)
     conds = sorted(groups)
-    labels = ["\n".join(str(k) for k in c if k is not None) for c in conds]
+    labels = ["\n".join(str(k) for k in c if k is not None and not (nav and k == "single"))
+              for c in conds]
     mods = _ordered({e["modality"] for e in eps})
     fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(conds), 3.6))
     width = 0.8 / max(1, len(mods))

@@ -1,21 +1,24 @@
 """`sebvs eval`: closed-loop evaluation through the real topology, every actor in the loop.
 
-For each condition and each modality (plus the expert as the reference row and the
+For each condition, scenario and modality (plus the expert as the reference row and the
 no-action baseline, actors/baseline.py, as the floor) one run of the policy topology plays
 N seeded episodes: the same topology seed gives every modality, the expert and the
-baseline the same episode seeds and so the same target trajectories. The tracker
+baseline the same episode seeds and so the same target trajectories. The topology seed
+is the first of a split's range (sebvs/data/splits.py: dev by default, test held out from
+every recording) or an explicit one ("custom"); the nav task's scenarios are its two
+scene variants, indoor and outdoor, the arm's one or three cubes. The tracker
 sink appends one JSON line per finished episode; this module only chooses overrides,
 supervises the runs with a progress bar, and aggregates.
 
-Resuming: a (condition, modality) whose episode file already holds N episodes is skipped;
-one that holds fewer is run again from its first episode (runs are short and episodes
-are seeded, so the numbers are the same). With `video`, a run whose videos are missing
-is run again too.
+Resuming: a (condition, scenario, modality) whose episode file already holds N episodes of
+this topology seed is skipped; one that holds fewer is run again from its first episode
+(runs are short and episodes are seeded, so the numbers are the same). With `video`, a
+run whose videos are missing is run again too.
 
 Videos (`video`): the overrides add a video writer (actors/video.py) to the run, writing
-<out>/videos/<condition>__<modality>__ep<k>.mp4 for the first `video_episodes` episodes,
-with the event frames wired to it for the modalities that use them. Without `video` no
-such actor starts.
+<out>/videos/<condition>[__<scenario>]__<modality>__ep<k>.mp4 for the first `video_episodes`
+episodes, with the event frames wired to it for the modalities that use them. Without
+`video` no such actor starts.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from ..data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS, SeedRange
 from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
@@ -50,7 +54,11 @@ ARM_CONDITIONS: dict[str, list[str]] = {
     "flicker": ['sim.config.lighting="flicker"'],
     "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8"],
 }
-# scenario -> overrides: the arm's single- and multi-object (cluttered) scenes
+# scenario -> overrides: the nav scene's two variants (the shipped checkpoints were trained
+# indoors only, so outdoor asks whether a policy transfers)
+NAV_SCENARIOS: dict[str, list[str]] = {"indoor": ['sim.config.variant="indoor"'],
+                                       "outdoor": ['sim.config.variant="outdoor"']}
+# the arm's single- and multi-object (cluttered) scenes
 ARM_SCENARIOS: dict[str, list[str]] = {"single": ["sim.config.objects=1"],
                                        "multi": ["sim.config.objects=3"]}
 
@@ -74,7 +82,7 @@ class TaskEval:
 
 
 TASKS = {
-    "nav": TaskEval(NAV_CONDITIONS, {"single": []}, TOPOLOGIES / "nav_policy.toml",
+    "nav": TaskEval(NAV_CONDITIONS, NAV_SCENARIOS, TOPOLOGIES / "nav_policy.toml",
                     TOPOLOGIES / "nav_expert.toml", "trace_error_px", "centroid_error.png",
                     "centroid error (px); gaps: target out of view"),
     "arm": TaskEval(ARM_CONDITIONS, ARM_SCENARIOS, TOPOLOGIES / "arm_policy.toml",
@@ -96,7 +104,7 @@ class Run:
 
     @property
     def key(self) -> str:
-        """File stem of its episode lines and videos (the nav task has one scenario, and
+        """File stem of its episode lines and videos ("single", the arm's one-cube scene,
         keeps the names it always had)."""
         parts = [self.condition] + ([self.scenario] if self.scenario != "single" else [])
         return "__".join(parts + [self.modality.replace("+", "_")])
@@ -113,7 +121,8 @@ class EvalPlan:
     episodes: int
     out: Path
     clock: str = "lockstep"
-    seed: int = 1000
+    split: str | None = None    # dev | test; None: dev, or "custom" when seed is given
+    seed: int | None = None     # None: the split's first seed
     checkpoints: str = "checkpoints"
     expert: bool = True
     baseline: bool = True                   # the no-action row
@@ -130,6 +139,16 @@ class EvalPlan:
             self.scenarios = list(spec.scenarios) if self.scenarios is None else self.scenarios
             self.policy_topology = self.policy_topology or spec.policy_topology
             self.expert_topology = self.expert_topology or spec.expert_topology
+        if self.split is None:
+            self.split = "custom" if self.seed is not None else DEFAULT_EVAL_SPLIT
+        if self.seed is None and self.split in EVAL_SPLITS:
+            self.seed = SPLITS[self.split].first
+
+    @property
+    def seed_range(self) -> SeedRange:
+        """The topology seeds this plan's split stands for (a custom seed: itself)."""
+        return SPLITS[self.split] if self.split in EVAL_SPLITS \
+            else SeedRange(self.split, self.seed, self.seed)
 
     def validate(self) -> None:
         if self.task not in TASKS:
@@ -144,6 +163,23 @@ class EvalPlan:
             if unknown:
                 raise ValueError(f"unknown {kind} {unknown[0]!r} for task {self.task} "
                                  f"(one of {', '.join(known)})")
+        if self.split not in (*EVAL_SPLITS, "custom"):
+            raise ValueError(f"unknown split {self.split!r} (one of {', '.join(EVAL_SPLITS)})")
+        if self.seed is None:
+            raise ValueError("a custom split needs a topology seed (--seed)")
+        if self.split in EVAL_SPLITS and self.seed not in SPLITS[self.split]:
+            raise ValueError(f"--seed {self.seed} is outside the {self.split} split's range "
+                             f"({SPLITS[self.split]})")
+        # results.json names the seed and each run's scenario: an extra override that
+        # changed either would make it name episodes that were not run
+        fixed = {("topology", "seed"): "--seed or --split"}
+        if self.task == "nav":
+            fixed[("sim", "config", "variant")] = "--scenarios"
+        for text in self.extra:
+            parts = tuple(parse_override(text)[0])
+            if parts in fixed:
+                raise ValueError(f"--set {text}: the evaluation sets {'.'.join(parts)} "
+                                 f"itself (use {fixed[parts]})")
         if self.episodes < 1:
             raise ValueError("--episodes must be at least 1")
         if self.clock not in ("lockstep", "realtime"):
@@ -207,7 +243,8 @@ class EvalPlan:
         path = self.episode_file(run)
         common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
                   f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
-                  f'tracker.label={{condition="{run.condition}", modality="{run.modality}"}}',
+                  f'tracker.label={{condition="{run.condition}", modality="{run.modality}", '
+                  f'topology_seed={self.seed}}}',
                   *spec.conditions[run.condition], *spec.scenarios[run.scenario],
                   *self.video_overrides(run)]
         if run.modality == "expert":
@@ -227,15 +264,21 @@ class EvalPlan:
         return self.policy_topology, common + sets + self.extra
 
 
-def _read_episodes(path: Path) -> list[dict]:
+def _read_episodes(path: Path, seed: int | None = None) -> list[dict]:
+    """The episode lines of a run; with `seed`, only up to the first line of another
+    topology seed (or of none: written before lines named it), so that an output directory
+    reused with another split or seed never passes one split's episodes off as another's."""
     if not path.exists():
         return []
     out = []
     for line in path.read_text().splitlines():
         try:
-            out.append(json.loads(line))
+            rec = json.loads(line)
         except json.JSONDecodeError:
             break   # a line cut by an interruption: what follows is not trusted
+        if seed is not None and rec.get("topology_seed") != seed:
+            break
+        out.append(rec)
     return out
 
 
@@ -270,7 +313,7 @@ def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
         raise
     if code != 0:
         raise RunFailed(f"{run}: {sup.failure}")
-    episodes = _read_episodes(path)
+    episodes = _read_episodes(path, plan.seed)
     bar.update(done_before + len(episodes) - bar.n)
     if len(episodes) < plan.episodes:
         raise RunFailed(f"{run}: {len(episodes)} of {plan.episodes} episodes finished "
@@ -285,17 +328,20 @@ def evaluate(plan: EvalPlan) -> dict:
     bar = tqdm(total=len(runs) * plan.episodes, unit="episode", desc="eval")
     for run in runs:
         bar.set_postfix_str(str(run))
-        have = _read_episodes(plan.episode_file(run))
+        have = _read_episodes(plan.episode_file(run), plan.seed)
         if len(have) >= plan.episodes and not plan.videos_missing(run):
             bar.update(plan.episodes)
             continue
         run_one(plan, run, bar)
     bar.close()
-    results = {"task": plan.task, "clock": plan.clock, "seed": plan.seed,
-               "episodes_per_run": plan.episodes, "episodes": []}
+    rng = plan.seed_range
+    results = {"task": plan.task, "clock": plan.clock, "split": plan.split,
+               "seed_range": [rng.first, rng.last], "seed": plan.seed,
+               "scenarios": list(plan.scenarios), "episodes_per_run": plan.episodes,
+               "episodes": []}
     trace = TASKS[plan.task].trace_key
     for run in runs:
-        for rec in _read_episodes(plan.episode_file(run))[:plan.episodes]:
+        for rec in _read_episodes(plan.episode_file(run), plan.seed)[:plan.episodes]:
             results["episodes"].append({"modality": run.modality, "condition": run.condition,
                                         "scenario": run.scenario,
                                         "seed": rec["seed"], "metrics": rec["metrics"],
@@ -366,7 +412,8 @@ def plot_latency(results: dict, path: Path) -> None:
             ax.hist(v, bins=40, alpha=0.6,
                     label=f"{mod}: p50 {np.median(v):.2f} ms, p99 {np.percentile(v, 99):.2f}")
     ax.set_xlabel("inference latency per call (ms)")
-    ax.legend(fontsize=7)
+    if by_mod and any(by_mod.values()):     # the expert and baseline rows infer nothing
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
