@@ -23,7 +23,7 @@ import zmq.asyncio
 
 from .inputs import TELEMETRY_MAX_RECORDS, InputStats, Inputs
 from .outputs import Outputs, count_subscriptions
-from .params import params_to_dict
+from .params import clip, params_to_dict
 
 __all__ = ["Node", "InputStats"]
 
@@ -127,7 +127,8 @@ class Node:
                 req = msgpack.unpackb(payload, raw=False)
                 reply = {"ok": True, "result": await self._handle_control(req)}
             except Exception as exc:  # a bad request is answered, never fatal
-                reply = {"ok": False, "error": _cut(f"{type(exc).__name__}: {exc}")}
+                reply = {"ok": False,
+                         "error": clip(f"{type(exc).__name__}: {exc}", MAX_ERROR_CHARS)}
             try:
                 body = msgpack.packb(reply, use_bin_type=True, default=_to_builtin)
             except Exception as exc:
@@ -238,12 +239,6 @@ class Node:
         self.inputs.close()
         self.telemetry_socket.close(linger=0)
         self.ctx.destroy(linger=0)
-
-
-def _cut(text: str) -> str:
-    if len(text) <= MAX_ERROR_CHARS:
-        return text
-    return f"{text[:MAX_ERROR_CHARS]}... ({len(text)} chars)"
 
 
 def _to_builtin(obj):

@@ -25,11 +25,14 @@ return validated values or raise `WireError`, whose `kind` names the part that w
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
 import msgpack
 import numpy as np
+
+from .params import clip, short_repr
 
 SCHEMA_VERSION = 1
 MAX_HEADER_BYTES = 1 << 20
@@ -40,6 +43,8 @@ MAX_HOPS = 64                  # stamps per message: a longer chain is a loop or
 MAX_SEQ = (1 << 63) - 1        # seq is a uint63: the producer's count of messages sent
 MAX_DTYPE_FIELDS = 64
 MAX_ITEMSIZE = 1 << 16
+SHOWN = 120                    # characters of a bad value an error message quotes
+_shown = functools.partial(short_repr, limit=SHOWN)
 
 
 class WireError(ValueError):
@@ -106,12 +111,12 @@ def dtype_from_wire(desc: Any) -> np.dtype:
                            "offsets": [f[2] for f in fields],
                            "itemsize": itemsize})
     except Exception as exc:   # numpy raises many types on odd descriptors; all mean "bad"
-        raise WireError(f"bad dtype descriptor {_short(desc)}: {type(exc).__name__}: "
-                        f"{_short(exc)}", "dtype") from None
+        raise WireError(f"bad dtype descriptor {_shown(desc)}: {type(exc).__name__}: "
+                        f"{clip(str(exc), SHOWN)}", "dtype") from None
     if dt.hasobject:
-        raise WireError(f"object dtype {_short(desc)} refused", "dtype")
+        raise WireError(f"object dtype {_shown(desc)} refused", "dtype")
     if dt.itemsize > MAX_ITEMSIZE or dt.itemsize == 0:
-        raise WireError(f"dtype {_short(desc)} has itemsize {dt.itemsize} "
+        raise WireError(f"dtype {_shown(desc)} has itemsize {dt.itemsize} "
                         f"(1..{MAX_ITEMSIZE})", "dtype")
     if isinstance(desc, str) and len(_DTYPES) < 256:
         _DTYPES[desc] = dt
@@ -133,12 +138,12 @@ def decode_header(raw) -> dict:
         h = msgpack.unpackb(raw, raw=False, strict_map_key=True,
                             max_array_len=1 << 16, max_map_len=1 << 12)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
-        raise WireError(f"header is not msgpack: {type(exc).__name__}: {_short(exc)}",
+        raise WireError(f"header is not msgpack: {type(exc).__name__}: {clip(str(exc), SHOWN)}",
                         "header") from None
     if not isinstance(h, dict):
         raise WireError("header is not a map", "header")
     if h.get("v") != SCHEMA_VERSION:
-        raise WireError(f"schema version {_short(h.get('v'))}, expected {SCHEMA_VERSION}",
+        raise WireError(f"schema version {_shown(h.get('v'))}, expected {SCHEMA_VERSION}",
                         "version")
     for key, types in (("src", str), ("out", str), ("seq", int), ("st", list), ("a", list),
                        ("m", dict)):
@@ -167,38 +172,33 @@ def _check_stamps(stamps: list) -> None:
     for st in stamps:
         if not (type(st) is list and len(st) == 3 and type(st[0]) is str
                 and type(st[1]) is int and type(st[2]) is int and st[1] >= 0 and st[2] >= 0):
-            raise WireError(f"bad stamp {_short(st)} (expected [actor, recv_ns, send_ns])",
+            raise WireError(f"bad stamp {_shown(st)} (expected [actor, recv_ns, send_ns])",
                             "stamps")
 
 
 def array_spec(desc) -> tuple[str, np.dtype, tuple[int, ...], int, Any]:
     """Validate one array descriptor: (name, dtype, shape, nbytes, loc)."""
     if not (isinstance(desc, list) and len(desc) == 4 and isinstance(desc[0], str)):
-        raise WireError(f"bad array descriptor {_short(desc)}", "shape")
+        raise WireError(f"bad array descriptor {_shown(desc)}", "shape")
     name, dt_desc, shape, loc = desc
     dt = dtype_from_wire(dt_desc)
     if not isinstance(shape, list) or len(shape) > MAX_NDIM:
-        raise WireError(f"array {_short(name)}: bad shape {_short(shape)}", "shape")
+        raise WireError(f"array {_shown(name)}: bad shape {_shown(shape)}", "shape")
     # every dimension bounded too: numpy refuses an empty array with a 2**64 dimension
     elements = 1
     for n in shape:
         if not isinstance(n, int) or isinstance(n, bool) or not 0 <= n <= MAX_ARRAY_BYTES:
-            raise WireError(f"array {_short(name)}: bad shape {_short(shape)}", "shape")
+            raise WireError(f"array {_shown(name)}: bad shape {_shown(shape)}", "shape")
         elements *= n
     nbytes = elements * dt.itemsize
     if nbytes > MAX_ARRAY_BYTES:
-        raise WireError(f"array {_short(name)} claims {nbytes} bytes "
+        raise WireError(f"array {_shown(name)} claims {nbytes} bytes "
                         f"(max {MAX_ARRAY_BYTES})", "shape")
     if loc is not None and not (type(loc) is list and len(loc) == 4 and type(loc[0]) is str
                                 and type(loc[1]) is int and type(loc[2]) is int
                                 and type(loc[3]) is int and loc[1] >= 0 and loc[2] >= 0
                                 and loc[3] >= 0):
-        raise WireError(f"array {_short(name)}: bad shared-memory location {_short(loc)}",
+        raise WireError(f"array {_shown(name)}: bad shared-memory location {_shown(loc)}",
                         "ring")
     return name, dt, tuple(shape), nbytes, loc
 
-
-def _short(value: Any, limit: int = 120) -> str:
-    """repr of a value from the wire, cut: an error message must not echo a 50 MB field."""
-    text = str(value) if isinstance(value, BaseException) else repr(value)
-    return text if len(text) <= limit else text[:limit] + f"... ({len(text)} chars)"
