@@ -58,6 +58,7 @@ SKIN_PERIOD = 0.1       # m, the belt texture's period along y (the skin's wrap-
 
 CUBE_MASS = 0.1         # kg, every cube (a 5 cm wooden block)
 
+
 def dh_forward(q) -> np.ndarray:
     """4x4 base -> flange transform of the UR5 for joint angles q (6,), from DH alone."""
     T = np.eye(4)
@@ -135,9 +136,10 @@ def arm_xml(grip_force: float, fovy: float) -> str:
         </body>"""
     return "".join(bodies) + gripper + "".join(reversed(close))
 
+
 def mjcf(head: str, c: dict, key: float, shadow: str) -> str:
     """The whole scene for config ``c`` (ArmScene's keys) under ``head`` (the scene's
-        compiler, options and visuals), the key light at ``key`` with its shadow flag."""
+    compiler, options and visuals), the key light at ``key`` with its shadow flag."""
     gain = float(c["servo_gain"])
     arm = arm_xml(float(c["grip_force"]), float(c["fovy"]))
     kp = [gain * k for k in (2000, 2000, 1500, 300, 300, 100)]
