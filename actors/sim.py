@@ -38,6 +38,7 @@ import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
+from sebvs.sim.randomise import SceneRandomiser
 from sebvs.sim.stability import StabilityMonitor
 
 import mujoco  # noqa: E402  (after sebvs.sim on purpose)
@@ -56,6 +57,9 @@ class Sim(Actor):
     class Params:
         scene: Literal["nav", "arm"] = "nav"
         config: dict = field(default_factory=dict)   # scene config: variant, conditions...
+        # per-episode draws over config keys (sebvs/sim/randomise.py): {} = every episode
+        # plays `config` as given
+        randomise: dict = field(default_factory=dict)
         # docs/numerics.md: discrete at 1 kHz (the most robust in stiff contacts, and
         # 1 kHz lets render_hz be 200 with 20 Hz control)
         integrator: Literal["euler", "implicitfast", "implicit", "rk4", "discrete"] = \
@@ -103,11 +107,12 @@ class Sim(Actor):
         for key in ("integrator", "timestep"):
             if key in p.config:
                 raise ValueError(f"sim: set {key!r} as a sim parameter, not inside config")
-        self.config = {**p.config, "integrator": p.integrator, "timestep": self.dt}
-        self.scene = make_scene(p.scene, **self.config)
-        self.model = self.scene.compile()
-        self.data = mujoco.MjData(self.model)
-        self.monitor = StabilityMonitor(self.model, self.scene.limits())
+        base = {**p.config, "integrator": p.integrator, "timestep": self.dt}
+        self.randomiser = SceneRandomiser(p.scene, base, p.randomise) if p.randomise else None
+        if self.randomiser:
+            self.log.info("sim: each episode draws %s", self.randomiser.describe())
+        self.config: dict = {}
+        self._build(base)
         self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
         self.command = self.scene.idle_command()            # last good command
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: newest valid action
@@ -121,6 +126,16 @@ class Sim(Actor):
                       "%d steps/state, lockstep wait %s", p.scene, p.config, p.integrator,
                       self.dt, self.steps_per_control, self.steps_per_render,
                       self.lockstep_wait)
+
+    def _build(self, config: dict) -> None:
+        """(Re)compile the scene for ``config``; a no-op when it is the current one."""
+        if config == self.config:
+            return
+        self.config = config
+        self.scene = make_scene(self.params.scene, **config)
+        self.model = self.scene.compile()
+        self.data = mujoco.MjData(self.model)
+        self.monitor = StabilityMonitor(self.model, self.scene.limits())
 
     # ------------------------------------------------------------------ actions
     async def on_action(self, msg: Message) -> None:
@@ -200,8 +215,11 @@ class Sim(Actor):
         return 0.0
 
     async def _episode(self, k: int) -> None:
-        p, model, data, scene = self.params, self.model, self.data, self.scene
         seed = episode_seed(self.seed, k)
+        if self.randomiser:
+            # the camera recompiles from the first state's meta, so both stay on one model
+            self._build(self.randomiser.draw(seed))
+        p, model, data, scene = self.params, self.model, self.data, self.scene
         scene.reset(model, data, np.random.default_rng(seed))
         self.monitor.reset(data)
         self.command = scene.idle_command()
