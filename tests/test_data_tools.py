@@ -9,12 +9,13 @@ from sebvs.data.episode import EpisodeWriter
 from sebvs.data.index import DatasetIndex, make_entry
 
 
-def make_dataset(root, task="nav", episodes=3, frames=20, side=32):
+def make_dataset(root, task="nav", episodes=3, frames=20, side=32, conditions=None):
     idx = DatasetIndex(root, task)
     rng = np.random.default_rng(1)
-    for _ in range(episodes):
+    for k in range(episodes):
         path = idx.path_for(idx.next_episode_number())
-        w = EpisodeWriter(path, task, {"scene": task, "conditions": {"c": 1}, "seed": 3})
+        cond = conditions[k] if conditions else {"c": 1}
+        w = EpisodeWriter(path, task, {"scene": task, "conditions": cond, "seed": 3})
         for t in range(frames):
             y = rng.uniform(-1, 1, 2 if task == "nav" else 6)
             w.append(rgb=rng.integers(0, 255, (side, side, 3), dtype=np.uint8),
@@ -84,3 +85,15 @@ def test_stats_prints_a_summary_and_renders_the_plot(tmp_path, capsys, task):
     assert "episodes           3" in out and "frames             60" in out
     assert "labelled commands  60" in out and "simulation         0.1 min" in out
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_stats_shows_the_coverage_of_what_varies(tmp_path, capsys):
+    conds = [{"variant": "indoor", "lighting": "low", "flicker_hz": 5.5, "width": 32},
+             {"variant": "outdoor", "lighting": "low", "flicker_hz": 12.0, "width": 32},
+             {"variant": "outdoor", "lighting": "low", "flicker_hz": 19.25, "width": 32}]
+    make_dataset(tmp_path / "ds", "nav", frames=10, conditions=conds)
+    assert main(["data", "stats", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    assert "variant        indoor 1 / 10, outdoor 2 / 20" in out
+    assert "flicker_hz     5.5 .. 19.25" in out
+    assert "lighting" not in out and "width" not in out          # the same everywhere

@@ -3,7 +3,9 @@
 Nav: control-vector scatter (v against w), mean forward speed per episode, accumulated
 events per episode. Arm: end-effector workspace (x-y and x-z scatter of the pre-grasp
 poses), accumulated events per episode. Printed: episodes, frames, minutes of simulation,
-labelled commands (frames whose target is finite).
+labelled commands (frames whose target is finite), and the coverage: for every scene config
+key that varies across episodes (a randomised recording, or batches recorded apart), the
+episodes and frames per value (a float key: its range).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ class EpisodeStats:
     mean_target: np.ndarray         # mean of the target over the episode
     mean_abs_v: float = float("nan")    # nav: mean |v| command (speed, either direction)
     robot_speed: float = float("nan")   # mean measured base speed, m/s (nav, from truth/robot)
+    conditions: dict = field(default_factory=dict)  # the scene config the episode played
 
 
 @dataclass
@@ -48,6 +51,26 @@ class DatasetStats:
     def labelled(self) -> int:
         return sum(e.labelled for e in self.episodes)
 
+    def coverage(self) -> dict[str, dict]:
+        """key -> {value: (episodes, frames)} for the config keys that vary; a float key
+        maps to {"min": x, "max": y} instead."""
+        keys = sorted({k for e in self.episodes for k in e.conditions})
+        out: dict[str, dict] = {}
+        for key in keys:
+            values = [e.conditions.get(key) for e in self.episodes]
+            if len({json.dumps(v, sort_keys=True) for v in values}) < 2:
+                continue
+            numbers = [v for v in values if isinstance(v, float)]
+            if numbers and len(numbers) == len(values):
+                out[key] = {"min": min(numbers), "max": max(numbers)}
+                continue
+            table: dict = {}
+            for e, v in zip(self.episodes, values):
+                n, f = table.get(str(v), (0, 0))
+                table[str(v)] = (n + 1, f + e.frames)
+            out[key] = dict(sorted(table.items()))
+        return out
+
     def summary(self) -> str:
         lines = [f"dataset {self.root} (task {self.task})",
                  f"  episodes           {len(self.episodes)}",
@@ -63,6 +86,15 @@ class DatasetStats:
                 v, w = self.targets[:, 0], self.targets[:, 1]
                 lines.append(f"  v mean {v.mean():+.3f} sd {v.std():.3f}; "
                              f"w mean {w.mean():+.3f} sd {w.std():.3f}")
+        cover = self.coverage()
+        if cover:
+            lines.append("  coverage (episodes / frames per scene setting)")
+        for key, table in cover.items():
+            if set(table) == {"min", "max"}:
+                lines.append(f"    {key:<14} {table['min']:g} .. {table['max']:g}")
+                continue
+            cells = ", ".join(f"{v} {n} / {f}" for v, (n, f) in table.items())
+            lines.append(f"    {key:<14} {cells}")
         return "\n".join(lines)
 
 
@@ -94,7 +126,8 @@ def collect(root: str | Path) -> DatasetStats:
             finite = np.isfinite(y).all(axis=1)
             eps.append(EpisodeStats(name, len(ep), sim_s, int(finite.sum()), events,
                                     y[finite].mean(axis=0) if finite.any()
-                                    else np.full(y.shape[1], np.nan)))
+                                    else np.full(y.shape[1], np.nan),
+                                    conditions=dict(ep.attrs.get("conditions") or {})))
             if ep.task == "nav" and finite.any():
                 eps[-1].mean_abs_v = float(np.abs(y[finite, 0]).mean())
             if "robot" in ep.truth and len(t) > 1:
