@@ -118,20 +118,23 @@ def _num(x: float, fmt: str = ".1f") -> str:
 
 
 def _paired_section(episodes: list[dict], value, label: str) -> list[str]:
-    """rgb+event against each other modality on the seeds both ran."""
+    """rgb+event against each other modality, and event-only against holding still (is the
+    event input worth anything on its own?), on the seeds both ran."""
     by_mod = defaultdict(dict)
     for e in episodes:
         by_mod[e["modality"]][e["seed"]] = value(e)
-    if "rgb+event" not in by_mod:
-        return []
+    pairs = [("rgb+event", m) for m in _ordered(by_mod) if m != "rgb+event"]
+    pairs.append(("event", "no_action"))
     lines = []
-    for other in _ordered(m for m in by_mod if m not in ("rgb+event",)):
-        seeds = sorted(set(by_mod["rgb+event"]) & set(by_mod[other]))
+    for mine, other in pairs:
+        if mine not in by_mod or other not in by_mod:
+            continue
+        seeds = sorted(set(by_mod[mine]) & set(by_mod[other]))
         if not seeds:
             continue
-        r = paired_comparison([by_mod["rgb+event"][s] for s in seeds],
+        r = paired_comparison([by_mod[mine][s] for s in seeds],
                               [by_mod[other][s] for s in seeds])
-        lines.append(f"| RGB+Event vs {NAME.get(other, other)} | {r['n']} | "
+        lines.append(f"| {NAME.get(mine, mine)} vs {NAME.get(other, other)} | {r['n']} | "
                      f"{100 * r['mean_diff']:+.1f} | [{100 * r['ci95'][0]:+.1f}, "
                      f"{100 * r['ci95'][1]:+.1f}] | {r['wins']}/{r['losses']}/{r['ties']} | "
                      f"{r['p_sign']:.3f} |")
