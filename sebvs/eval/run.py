@@ -45,6 +45,8 @@ NAV_CONDITIONS: dict[str, list[str]] = {
     "low_light": ['sim.config.lighting="low"'],
     "flicker": ['sim.config.lighting="flicker"'],
     "blur": ["sim.config.rgb_blur=8"],
+    # the hardest pairing for a frame camera: fast motion under a flickering light
+    "fast_flicker": ['sim.config.target_speed="fast"', 'sim.config.lighting="flicker"'],
 }
 ARM_CONDITIONS: dict[str, list[str]] = {
     "nominal": [],                                          # static conveyor
