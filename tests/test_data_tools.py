@@ -88,12 +88,13 @@ def test_stats_prints_a_summary_and_renders_the_plot(tmp_path, capsys, task):
 
 
 def test_stats_shows_the_coverage_of_what_varies(tmp_path, capsys):
-    conds = [{"variant": "indoor", "lighting": "low", "flicker_hz": 5.5, "width": 32},
-             {"variant": "outdoor", "lighting": "low", "flicker_hz": 12.0, "width": 32},
-             {"variant": "outdoor", "lighting": "low", "flicker_hz": 19.25, "width": 32}]
-    make_dataset(tmp_path / "ds", "nav", frames=10, conditions=conds)
+    hz = [5.5 + k for k in range(9)]                    # drawn from a range
+    conds = [{"variant": "indoor" if k < 3 else "outdoor", "lighting": "low",
+              "flicker_hz": hz[k], "belt": [0.08, 0.25][k % 2], "width": 32} for k in range(9)]
+    make_dataset(tmp_path / "ds", "nav", frames=10, episodes=9, conditions=conds)
     assert main(["data", "stats", str(tmp_path / "ds")]) == 0
     out = capsys.readouterr().out
-    assert "variant        indoor 1 / 10, outdoor 2 / 20" in out
-    assert "flicker_hz     5.5 .. 19.25" in out
+    assert "variant        indoor 3 / 30, outdoor 6 / 60" in out
+    assert "flicker_hz     5.5 .. 13.5" in out
+    assert "belt           0.08 5 / 50, 0.25 4 / 40" in out        # a few choices: a row each
     assert "lighting" not in out and "width" not in out          # the same everywhere

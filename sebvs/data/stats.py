@@ -18,6 +18,8 @@ import numpy as np
 from .episode import open_episode
 from .index import INDEX
 
+MAX_VALUES = 8          # a coverage row per value up to this many distinct values
+
 
 @dataclass
 class EpisodeStats:
@@ -52,8 +54,8 @@ class DatasetStats:
         return sum(e.labelled for e in self.episodes)
 
     def coverage(self) -> dict[str, dict]:
-        """key -> {value: (episodes, frames)} for the config keys that vary; a float key
-        maps to {"min": x, "max": y} instead."""
+        """key -> {value: (episodes, frames)} for the config keys that vary; a float key with
+        more than MAX_VALUES distinct values maps to {"min": x, "max": y} instead."""
         keys = sorted({k for e in self.episodes for k in e.conditions})
         out: dict[str, dict] = {}
         for key in keys:
@@ -61,13 +63,16 @@ class DatasetStats:
             if len({json.dumps(v, sort_keys=True) for v in values}) < 2:
                 continue
             numbers = [v for v in values if isinstance(v, float)]
-            if numbers and len(numbers) == len(values):
+            # a float drawn from a range has as many values as episodes: show its range;
+            # one drawn from a few choices (belt speeds) gets a row per value
+            if numbers and len(numbers) == len(values) and len(set(numbers)) > MAX_VALUES:
                 out[key] = {"min": min(numbers), "max": max(numbers)}
                 continue
             table: dict = {}
             for e, v in zip(self.episodes, values):
-                n, f = table.get(str(v), (0, 0))
-                table[str(v)] = (n + 1, f + e.frames)
+                name = f"{v:g}" if isinstance(v, float) else str(v)
+                n, f = table.get(name, (0, 0))
+                table[name] = (n + 1, f + e.frames)
             out[key] = dict(sorted(table.items()))
         return out
 
