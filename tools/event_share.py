@@ -1,0 +1,132 @@
+"""Where a nav dataset's events come from: the target, or everything else?
+
+An event camera on a moving robot sees edges everywhere: the floor's checker, the walls,
+the horizon. A policy that steers by events alone has to find the cube's share among them.
+For every labelled frame with the target visible, this counts the events inside the
+target's true bounding box (from the episode's truth, grown by `--margin` px) against all
+the frame's events, and the box's share of the image. The ratio of the two shares is the
+target's event density over the image's: 1 means the target stands out no more than a
+random patch of the same size; the event input carries the target only where it is well
+above 1.
+
+    python tools/event_share.py datasets/nav_rand [--json out.json] [--by variant,lighting]
+
+Printed: one row per group of episodes (by the scene settings named in --by, from each
+file's `conditions`), medians over frames: events per frame, the target's share of the
+events, its share of the pixels, and the density ratio; frames where the target holds no
+event at all.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sebvs.data.episode import open_episode  # noqa: E402
+from sebvs.data.stats import episode_files  # noqa: E402
+
+
+def frame_shares(event_frame: np.ndarray, bbox: np.ndarray, image: np.ndarray,
+                 margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: (events, target's share of them, box's share of the pixels).
+
+    event_frame [T, 2, H, W] counts; bbox [T, 4] (u0, v0, u1, v1) px in the truth's image
+    of size image [T, 2] (w, h), which may differ from the event frame's H x W.
+    """
+    t, _, h, w = event_frame.shape
+    total = event_frame.reshape(t, -1).sum(axis=1, dtype=np.int64)
+    inside = np.zeros(t, np.int64)
+    area = np.zeros(t)
+    for k in range(t):
+        sx, sy = w / image[k, 0], h / image[k, 1]
+        u0 = int(np.clip(np.floor(bbox[k, 0] * sx - margin), 0, w))
+        u1 = int(np.clip(np.ceil(bbox[k, 2] * sx + margin), 0, w))
+        v0 = int(np.clip(np.floor(bbox[k, 1] * sy - margin), 0, h))
+        v1 = int(np.clip(np.ceil(bbox[k, 3] * sy + margin), 0, h))
+        inside[k] = event_frame[k, :, v0:v1, u0:u1].sum(dtype=np.int64)
+        area[k] = (u1 - u0) * (v1 - v0) / (w * h)
+    share = np.where(total > 0, inside / np.maximum(total, 1), np.nan)
+    return total, share, area
+
+
+def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, list]]:
+    groups: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for name in episode_files(root):
+        with open_episode(root / name) as ep:
+            if ep.event_frame is None or "bbox" not in ep.truth:
+                raise SystemExit(f"{root / name}: no event frames or no target bbox in its "
+                                 f"truth (a nav dataset is needed)")
+            cond = ep.attrs.get("conditions") or {}
+            key = ", ".join(f"{k}={cond.get(k, '?')}" for k in by) or "all"
+            vis = np.asarray(ep.truth["visible"][:]) > 0
+            bbox = np.asarray(ep.truth["bbox"][:])
+            ok = vis & np.isfinite(bbox).all(axis=1)
+            if not ok.any():
+                continue
+            idx = np.flatnonzero(ok)
+            total, share, area = frame_shares(np.asarray(ep.event_frame[:])[idx], bbox[idx],
+                                              np.asarray(ep.truth["image"][:])[idx], margin)
+            g = groups[key]
+            g["events"] += total.tolist()
+            g["share"] += share.tolist()
+            g["area"] += area.tolist()
+            g["episodes"].append(name)
+    return groups
+
+
+def summarise(groups: dict) -> list[dict]:
+    rows = []
+    for key in sorted(groups):
+        g = groups[key]
+        share, area = np.asarray(g["share"], float), np.asarray(g["area"], float)
+        ratio = share / np.maximum(area, 1e-9)
+        has = np.isfinite(share)
+        rows.append({"group": key, "episodes": len(g["episodes"]), "frames": len(share),
+                     "events_per_frame_p50": float(np.median(g["events"])),
+                     "target_event_share_p50": float(np.nanmedian(share)) if has.any() else None,
+                     "target_area_share_p50": float(np.median(area)),
+                     "density_ratio_p50": float(np.nanmedian(ratio)) if has.any() else None,
+                     "frames_without_target_events": float(np.mean(share[has] == 0))
+                     if has.any() else None})
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("dataset", type=Path, help="a nav dataset directory (index.json + episodes)")
+    ap.add_argument("--by", default="variant,lighting",
+                    help="comma-separated scene settings to group by (default variant,lighting; "
+                         "'' for one group)")
+    ap.add_argument("--margin", type=float, default=2.0,
+                    help="px the target's box grows by on every side (event frames are "
+                         "accumulated over a window the target moves in)")
+    ap.add_argument("--json", type=Path, help="also write the rows as JSON here")
+    args = ap.parse_args(argv)
+    if not args.dataset.is_dir():
+        ap.error(f"{args.dataset}: not a directory")
+    by = [k for k in args.by.split(",") if k]
+    rows = summarise(collect(args.dataset, by, args.margin))
+    print(f"{'group':<38} {'eps':>4} {'frames':>7} {'events/frame':>12} "
+          f"{'target share':>12} {'box area':>9} {'density x':>9} {'no target ev':>12}")
+    for r in rows:
+        f = lambda x, fmt: "-" if x is None else format(x, fmt)   # noqa: E731
+        print(f"{r['group']:<38} {r['episodes']:>4} {r['frames']:>7} "
+              f"{r['events_per_frame_p50']:>12.0f} {f(r['target_event_share_p50'], '.3f'):>12} "
+              f"{r['target_area_share_p50']:>9.3f} {f(r['density_ratio_p50'], '.1f'):>9} "
+              f"{f(r['frames_without_target_events'], '.2f'):>12}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"dataset": str(args.dataset), "margin_px": args.margin,
+                                         "by": by, "rows": rows}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
