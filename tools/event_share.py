@@ -10,6 +10,7 @@ random patch of the same size; the event input carries the target only where it 
 above 1.
 
     python tools/event_share.py datasets/nav_rand [--json out.json] [--by variant,lighting]
+                                [--figure shares.png]
 
 Printed: one row per group of episodes (by the scene settings named in --by, from each
 file's `conditions`), medians over frames: events per frame, the target's share of the
@@ -80,6 +81,62 @@ def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, lis
     return groups
 
 
+def example_frames(root: Path, by: list[str], margin: float) -> list[tuple[str, np.ndarray,
+                                                                            np.ndarray, np.ndarray]]:
+    """One frame per group (the middle labelled frame of its first episode with the target
+    in view): (group, rgb [H, W, 3], event frame [2, h, w], box in event px)."""
+    out, seen = [], set()
+    for name in episode_files(root):
+        with open_episode(root / name) as ep:
+            cond = ep.attrs.get("conditions") or {}
+            key = ", ".join(f"{k}={cond.get(k, '?')}" for k in by) or "all"
+            if key in seen or ep.event_frame is None:
+                continue
+            vis = np.flatnonzero(np.asarray(ep.truth["visible"][:]) > 0)
+            if not len(vis):
+                continue
+            k = int(vis[len(vis) // 2])
+            ev = np.asarray(ep.event_frame[k])
+            sx = ev.shape[2] / ep.truth["image"][k][0]
+            sy = ev.shape[1] / ep.truth["image"][k][1]
+            b = np.asarray(ep.truth["bbox"][k]) * [sx, sy, sx, sy] + [-margin, -margin,
+                                                                      margin, margin]
+            out.append((key, np.asarray(ep.rgb[k]), ev, b))
+            seen.add(key)
+    return sorted(out, key=lambda x: x[0])
+
+
+def plot_examples(examples, rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    by_group = {r["group"]: r for r in rows}
+    fig, axes = plt.subplots(2, len(examples), figsize=(2.6 * len(examples), 5.6),
+                             squeeze=False)
+    for j, (key, rgb, ev, box) in enumerate(examples):
+        axes[0, j].imshow(rgb)
+        on, off = ev[0].astype(float), ev[1].astype(float)
+        img = np.stack([np.minimum(off / 4, 1), np.zeros_like(on), np.minimum(on / 4, 1)], -1)
+        axes[1, j].imshow(1 - 0.8 * img.max(axis=-1, keepdims=True) + 0.8 * img)
+        for ax, scale in ((axes[0, j], rgb.shape[1] / ev.shape[2]), (axes[1, j], 1.0)):
+            u0, v0, u1, v1 = box * scale
+            ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, ec="lime", lw=1.2))
+            ax.set_xticks([])
+            ax.set_yticks([])
+        r = by_group.get(key, {})
+        share = r.get("target_event_share_p50")
+        axes[0, j].set_title(key.replace(", ", "\n"), fontsize=8)
+        axes[1, j].set_xlabel(f"{int(ev.sum())} events here; median\ntarget share "
+                              f"{'-' if share is None else f'{100 * share:.1f} %'}", fontsize=8)
+    fig.suptitle("RGB (top) and the event frame the policy sees (bottom; ON blue, OFF red); "
+                 "green: the target's true box", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def summarise(groups: dict) -> list[dict]:
     rows = []
     for key in sorted(groups):
@@ -108,6 +165,9 @@ def main(argv=None) -> int:
                     help="px the target's box grows by on every side (event frames are "
                          "accumulated over a window the target moves in)")
     ap.add_argument("--json", type=Path, help="also write the rows as JSON here")
+    ap.add_argument("--figure", type=Path,
+                    help="also draw one example frame per group (RGB and events, the "
+                         "target's box) to this PNG")
     args = ap.parse_args(argv)
     if not args.dataset.is_dir():
         ap.error(f"{args.dataset}: not a directory")
@@ -121,6 +181,10 @@ def main(argv=None) -> int:
               f"{r['events_per_frame_p50']:>12.0f} {f(r['target_event_share_p50'], '.3f'):>12} "
               f"{r['target_area_share_p50']:>9.3f} {f(r['density_ratio_p50'], '.1f'):>9} "
               f"{f(r['frames_without_target_events'], '.2f'):>12}")
+    if args.figure:
+        args.figure.parent.mkdir(parents=True, exist_ok=True)
+        plot_examples(example_frames(args.dataset, by, args.margin), rows, args.figure)
+        print(f"figure: {args.figure}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"dataset": str(args.dataset), "margin_px": args.margin,
