@@ -150,6 +150,13 @@ def _cmd_profile(args) -> int:
         write_json(rep, args.json)
     if args.plot:
         plot_report(rep, collector, args.plot)
+    if args.trace:
+        from .runtime.trace import build_trace, select_records, write_trace
+        trace = build_trace(select_records(list(collector.kept.values()), args.trace_ticks),
+                            run=str(info.get("name", "")))
+        write_trace(trace, args.trace)
+        print(f"trace: {args.trace} ({trace['otherData']['records']} handled messages; "
+              f"open it in ui.perfetto.dev or chrome://tracing)")
     collector.close()
     return 0
 
@@ -205,12 +212,19 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("profile", help="attach the latency profiler to a live run",
                        description="Subscribe to every actor's telemetry for a while and "
                                    "print per-edge transport latency, per-actor handler time "
-                                   "(p50/p90/p99/max, counts, drops) and end-to-end chains.")
+                                   "(p50/p90/p99/max, counts, drops), end-to-end chains and "
+                                   "each chain split per hop into queueing, wake-up, "
+                                   "transport and handler (docs/runtime.md).")
     f.add_argument("run", nargs="?", default=None,
                    help="run name, id or directory (default: the newest live run)")
     f.add_argument("--for", dest="duration", type=_seconds, default=5.0, metavar="SECONDS")
     f.add_argument("--json", metavar="FILE")
     f.add_argument("--plot", metavar="FILE", help="latency histograms as PNG")
+    f.add_argument("--trace", metavar="FILE.json",
+                   help="write a Chrome trace-event file of the last --trace-ticks ticks "
+                        "(one track per actor; open in ui.perfetto.dev or chrome://tracing)")
+    f.add_argument("--trace-ticks", type=int, default=300, metavar="N",
+                   help="control ticks in the trace (default 300)")
     f.set_defaults(func=_cmd_profile)
 
     for name in PLUGINS:

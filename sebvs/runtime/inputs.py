@@ -70,11 +70,49 @@ class _Input:
         default_factory=lambda: collections.deque(maxlen=HANDLER_WINDOW))
 
 
+class LoopClock:
+    """When the event loop last went to sleep in ``select()`` and when it woke from it.
+
+    Installed around the running loop's selector by ``Inputs.start`` (CPython's selector
+    event loops call ``self._selector.select(timeout)`` once per iteration): two
+    ``monotonic_ns`` reads per loop iteration, so the profiler can tell the time a message
+    waited while its consumer slept (a wake-up) from the time it waited while the consumer
+    was busy with other work (queueing). 0 until installed (a Node driven by hand, tools).
+    """
+
+    def __init__(self, selector=None) -> None:
+        self._selector = selector
+        self.slept_ns = 0      # select() entered: the loop had nothing ready to run
+        self.woke_ns = 0       # select() returned: the loop runs this iteration's callbacks
+
+    def select(self, timeout=None):
+        self.slept_ns = time.monotonic_ns()
+        try:
+            return self._selector.select(timeout)
+        finally:
+            self.woke_ns = time.monotonic_ns()
+
+    def __getattr__(self, name):       # register, modify, unregister, get_map, close...
+        return getattr(self._selector, name)
+
+    @classmethod
+    def install(cls, loop) -> "LoopClock":
+        """The loop's clock, wrapping its selector once (several Nodes may share a loop)."""
+        current = getattr(loop, "_selector", None)
+        if isinstance(current, cls):
+            return current
+        if current is None or not hasattr(current, "select"):
+            return cls()      # not a selector loop: stamps stay 0, the profiler says so
+        loop._selector = clock = cls(current)
+        return clock
+
+
 class Inputs:
     """An actor's inputs, the rings they read and the record of every handled message."""
 
     def __init__(self) -> None:
         self.ports: dict[str, _Input] = {}
+        self.loop_clock = LoopClock()                # the running loop's, from start()
         self.reader = RingReader()
         self.stopping: asyncio.Event | None = None   # the actor's, set at connect
         self.ring_prefix = "sebvs-"                   # narrowed to the run's at connect
@@ -103,6 +141,7 @@ class Inputs:
 
     def start(self) -> None:
         loop = asyncio.get_running_loop()
+        self.loop_clock = LoopClock.install(loop)
         for inp in self.ports.values():
             loop.add_reader(inp.socket.FD, self.drain, inp)
             loop.call_soon(self.drain, inp)  # the FD is edge-triggered: read what is queued
@@ -119,9 +158,14 @@ class Inputs:
         if inp.busy is not None or self.stopping.is_set():
             return
         sock, st = inp.socket, inp.stats
+        # the loop iteration this callback runs in: when the loop slept and woke (the
+        # profiler's wake-up / queueing split), read once per callback
+        clock = self.loop_clock
+        slept, woke = clock.slept_ns, clock.woke_ns
         budget_end = time.monotonic_ns() + DRAIN_BUDGET_NS
         for _ in range(DRAIN_BATCH):
-            if time.monotonic_ns() > budget_end:
+            taken = time.monotonic_ns()     # the budget check's clock read, kept as a stamp
+            if taken > budget_end:
                 break
             try:
                 frames = _recv_message(sock)
@@ -132,10 +176,12 @@ class Inputs:
             st.received += 1
             if inp.latest:
                 while True:  # keep only the newest queued message
+                    t = time.monotonic_ns()
                     try:
                         frames = _recv_message(sock)
                     except zmq.Again:
                         break
+                    taken = t               # the kept message may have come after the first
                     st.received += 1
                     st.dropped_latest += 1
             try:
@@ -143,7 +189,7 @@ class Inputs:
             except Exception as exc:   # a decoder bug must not end this input: count it
                 self._malformed(inp, WireError(f"{type(exc).__name__}: {exc}", "internal"))
                 continue
-            if msg is not None and not self._dispatch(inp, msg):
+            if msg is not None and not self._dispatch(inp, msg, (slept, woke, taken)):
                 return  # the handler suspended; _resume reschedules us
         asyncio.get_running_loop().call_soon(self.drain, inp)
 
@@ -218,31 +264,37 @@ class Inputs:
             log.warning("input %r: malformed message dropped (%s, %d of this kind, %d in "
                         "all): %s", inp.name, exc.kind, n, st.malformed, exc)
 
-    def _dispatch(self, inp: _Input, msg: Message) -> bool:
-        """Run the handler eagerly; False if it suspended and continues as a task."""
+    def _dispatch(self, inp: _Input, msg: Message, arrival: tuple) -> bool:
+        """Run the handler eagerly; False if it suspended and continues as a task.
+
+        ``arrival`` = (slept_ns, woke_ns, taken_ns): the loop iteration's select() entry
+        and return, and when this message was taken off the socket; telemetry only.
+        """
         msg.recv_ns = start = time.monotonic_ns()
         coro = inp.handler(msg)
         try:
             yielded = coro.send(None)
         except StopIteration:
-            self._handled(inp, msg, start, None)
+            self._handled(inp, msg, start, None, arrival)
             return True
         except Exception as exc:
-            self._handled(inp, msg, start, exc)
+            self._handled(inp, msg, start, exc, arrival)
             return True
         task = asyncio.ensure_future(_continue(coro, yielded))
         inp.busy = task
-        task.add_done_callback(lambda t: self._resume(inp, msg, start, t))
+        task.add_done_callback(lambda t: self._resume(inp, msg, start, t, arrival))
         return False
 
-    def _resume(self, inp: _Input, msg: Message, start: int, task: asyncio.Task) -> None:
+    def _resume(self, inp: _Input, msg: Message, start: int, task: asyncio.Task,
+                arrival: tuple) -> None:
         inp.busy = None
         exc = None if task.cancelled() else task.exception()
-        self._handled(inp, msg, start, exc)
+        self._handled(inp, msg, start, exc, arrival)
         if not self.stopping.is_set():
             asyncio.get_running_loop().call_soon(self.drain, inp)
 
-    def _handled(self, inp: _Input, msg: Message, start: int, exc: BaseException | None) -> None:
+    def _handled(self, inp: _Input, msg: Message, start: int, exc: BaseException | None,
+                 arrival: tuple) -> None:
         end = time.monotonic_ns()
         st = inp.stats
         st.handled += 1
@@ -258,8 +310,9 @@ class Inputs:
                                     for l in msg.shm_locs.values()):
             st.torn += 1
         if len(self.records) < TELEMETRY_MAX_RECORDS:
+            # the record layout is the profiler's (profiler.RECORD_FIELDS)
             self.records.append([inp.name, msg.topic, msg.seq, msg.tick, msg.t_sim,
-                                 msg.stamps, start, end])
+                                 msg.stamps, start, end, *arrival])
         else:
             self.records_skipped += 1
 

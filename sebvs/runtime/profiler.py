@@ -1,11 +1,21 @@
 """The latency profiler: attaches to a live run's telemetry and summarises every hop.
 
-Each actor publishes, per handled message, the stamp chain it arrived with plus its own
-handler start and end. From these:
+Each actor publishes, per handled message, a record (``RECORD_FIELDS``): the stamp chain
+it arrived with ([actor, recv_ns, send_ns] per hop), its handler start and end, and three
+arrival stamps: when its event loop last entered and left select() before taking the
+message (``inputs.LoopClock``) and when it took the message off its socket. All are
+``time.monotonic_ns()``, one clock for every process of a host. From these:
 
-- edge transport latency = handler start at the consumer - send stamp of the producer
-- handler time           = handler end - handler start, per actor input
-- end-to-end chain       = handler end at a sink - send stamp of the first actor
+- edge latency     = handler start at the consumer - send stamp of the producer
+- handler time     = handler end - handler start, per actor input
+- end-to-end chain = handler end - send stamp of the first actor, at a sink (an actor
+                     whose outputs nobody consumes) and where a loop closes (the chain's
+                     first actor receives it: sim > camera > ... > policy > sim)
+- chain split      = each chain's hops cut into queueing, wake-up, transport and handler
+                     (exact definitions in ``chainsplit.py``; they add up to the chain)
+
+Telemetry that does not parse (a batch, a record, a stamp of the wrong shape) is counted
+in ``skipped`` and left out; it never stops the profiler.
 """
 from __future__ import annotations
 
@@ -15,9 +25,18 @@ import time
 from pathlib import Path
 
 import msgpack
+import numpy as np
 import zmq
 
+from .chainsplit import COMPONENTS, split_hops
 from .stats import summarize
+
+# a telemetry record, as inputs.Inputs._handled writes it; the three arrival stamps came
+# later, so a record without them (8 fields) still counts everywhere but in the split
+RECORD_FIELDS = ("input", "topic", "seq", "tick", "t_sim", "stamps", "start_ns", "end_ns",
+                 "slept_ns", "woke_ns", "taken_ns")
+KEEP_RECORDS = 200_000     # records kept for the split and the trace (oldest dropped first)
+KEEP_CHAINS = 100_000      # chain instances kept per chain for the split
 
 
 class ProfileCollector:
@@ -35,11 +54,17 @@ class ProfileCollector:
         self.edges = collections.defaultdict(list)
         self.handlers = collections.defaultdict(list)
         self.chains = collections.defaultdict(list)
+        # (actor, handler start ns) -> (actor, input, tick, stamps, start, end, slept, woke,
+        # taken): the join of a chain's hops to their consumers' records, and the trace
+        self.kept: collections.OrderedDict = collections.OrderedDict()
+        # chain name -> [(stamps, end_ns, the closing record's key)], split at report()
+        self.chain_instances = collections.defaultdict(list)
         self.events = collections.Counter()
         self.last_events: list = []
         self.drops_first: dict = {}
         self.drops_last: dict = {}
-        self.skipped = collections.Counter()
+        self.skipped = collections.Counter()   # ours: batches/records that did not parse
+        self.node_skipped: dict = {}            # per actor: records beyond its batch limit
         self.t_start = time.monotonic()
         self.t_first = None
 
@@ -51,31 +76,134 @@ class ProfileCollector:
             left = deadline - time.monotonic()
             if not self.socket.poll(max(0, int(left * 1000))):
                 return n
-            _, body = self.socket.recv_multipart()
-            self._ingest(msgpack.unpackb(body, raw=False))
+            frames = self.socket.recv_multipart()
+            try:
+                batch = msgpack.unpackb(frames[-1], raw=False)
+            except Exception:   # msgpack raises several types on garbage
+                self.skipped["batches"] += 1
+                continue
+            self.ingest(batch)
             n += 1
             if left <= 0:
                 return n
 
-    def _ingest(self, batch: dict) -> None:
+    def ingest(self, batch) -> None:
+        """One telemetry batch (as node.Node._flush_telemetry publishes it)."""
+        if not isinstance(batch, dict) or not isinstance(batch.get("actor"), str):
+            self.skipped["batches"] += 1
+            return
         actor = batch["actor"]
         if self.t_first is None:
             self.t_first = time.monotonic()
-        for inp, topic, seq, tick, t_sim, stamps, start, end in batch["records"]:
-            if stamps:
-                self.edges[(topic, f"{actor}.{inp}")].append(start - stamps[-1][2])
-                if actor in self.sinks:
-                    chain = " > ".join([s[0] for s in stamps] + [actor])
-                    self.chains[chain].append(end - stamps[0][2])
-            self.handlers[(actor, inp)].append(end - start)
-        for kind, t_ns, fields in batch["events"]:
+        records = batch.get("records")
+        for rec in records if isinstance(records, list) else ():
+            if not self._ingest_record(actor, rec):
+                self.skipped["records"] += 1
+        events = batch.get("events")
+        for ev in events if isinstance(events, list) else ():
+            if not (isinstance(ev, list) and len(ev) == 3 and isinstance(ev[0], str)):
+                self.skipped["events"] += 1
+                continue
+            kind, t_ns, fields = ev
             self.events[f"{actor}:{kind}"] += 1
             self.last_events = (self.last_events + [[actor, kind, t_ns, fields]])[-50:]
-        for inp, counters in batch["drops"].items():
+        drops = batch.get("drops")
+        for inp, counters in (drops.items() if isinstance(drops, dict) else ()):
+            if not isinstance(counters, dict):
+                self.skipped["drops"] += 1
+                continue
             key = (actor, inp)
             self.drops_first.setdefault(key, counters)
             self.drops_last[key] = counters
-        self.skipped[actor] = batch.get("skipped", 0)
+        if _is_int(batch.get("skipped")):
+            self.node_skipped[actor] = batch["skipped"]
+
+    def _ingest_record(self, actor: str, rec) -> bool:
+        """Account one record; False (and nothing counted) if it does not parse."""
+        if not (isinstance(rec, list) and len(rec) in (8, len(RECORD_FIELDS))):
+            return False
+        inp, topic, _seq, tick, _t_sim, stamps, start, end = rec[:8]
+        arrival = rec[8:] or [0, 0, 0]
+        if not (isinstance(inp, str) and isinstance(topic, str) and isinstance(stamps, list)
+                and all(map(_is_int, (start, end, *arrival))) and start <= end
+                and all(_is_stamp(s) for s in stamps)):
+            return False
+        if tick is not None and not _is_int(tick):
+            tick = None
+        if stamps:
+            self.edges[(topic, f"{actor}.{inp}")].append(start - stamps[-1][2])
+            if actor in self.sinks or actor == stamps[0][0]:
+                chain = " > ".join([s[0] for s in stamps] + [actor])
+                self.chains[chain].append(end - stamps[0][2])
+                instances = self.chain_instances[chain]
+                if len(instances) < KEEP_CHAINS:
+                    instances.append((stamps, end, (actor, start)))
+        self.handlers[(actor, inp)].append(end - start)
+        if len(self.kept) >= KEEP_RECORDS:
+            self.kept.popitem(last=False)
+        self.kept[(actor, start)] = (actor, inp, tick, stamps, start, end, *arrival)
+        return True
+
+    # ------------------------------------------------------------------ chain split
+    def split(self, since_ns: int | None = None) -> list[dict]:
+        """Per chain, its hops' components (``chainsplit.split_hops``), one row per hop.
+
+        ``since_ns``: only the instances whose first send is at or after it (a start-up
+        transient left out).
+
+        Instances whose hops cannot all be joined to their consumers' records (a record
+        from before the profiler attached, one an actor skipped, a batch lost) are counted
+        as ``unresolved`` and left out of the split, not out of the chain figures.
+        """
+        out = []
+        for chain, instances in sorted(self.chain_instances.items()):
+            per_hop, totals, unresolved = None, [], 0
+            if since_ns is not None:
+                instances = [i for i in instances if i[0][0][2] >= since_ns]
+            for stamps, end, key in instances:
+                keys = [(s[0], s[1]) for s in stamps[1:]] + [key]
+                arrivals = []
+                for k in keys:
+                    r = self.kept.get(k)
+                    arrivals.append(None if r is None else (r[6], r[7], r[8], r[4]))
+                hops = split_hops(stamps, end, arrivals)
+                if hops is None:
+                    unresolved += 1
+                    continue
+                if per_hop is None:
+                    per_hop = [{c: [] for c in COMPONENTS} for _ in hops]
+                for row, hop in zip(per_hop, hops):
+                    for c in COMPONENTS:
+                        row[c].append(hop[c])
+                totals.append(end - stamps[0][2])
+            names = chain.split(" > ")
+            entry = {"chain": chain, "instances": len(instances), "resolved": len(totals),
+                     "unresolved": unresolved, "chain_us": summarize(totals, 1e-3),
+                     "hops": [], "components": {}}
+            if per_hop:
+                total_ns = float(np.sum(totals))
+                sums = {c: np.zeros(len(totals)) for c in COMPONENTS}
+                for j, row in enumerate(per_hop):
+                    hop = {"hop": f"{names[j]} > {names[j + 1]}", "actor": names[j + 1]}
+                    for c in COMPONENTS:
+                        v = np.asarray(row[c], dtype=np.float64)
+                        sums[c] += v
+                        hop[c] = dict(summarize(v, 1e-3),
+                                      share=float(v.sum() / total_ns) if total_ns else None)
+                    entry["hops"].append(hop)
+                for c in COMPONENTS:
+                    entry["components"][c] = dict(
+                        summarize(sums[c], 1e-3),
+                        share=float(sums[c].sum() / total_ns) if total_ns else None)
+                # the chain's own compute (its handlers' share) beside the chain itself
+                compute = sums["handler"]
+                entry["compute_us"] = summarize(compute, 1e-3)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    entry["chain_over_compute_p50"] = (
+                        float(np.median(totals) / np.median(compute))
+                        if np.median(compute) > 0 else None)
+            out.append(entry)
+        return out
 
     def report(self) -> dict:
         def drops(key):
@@ -94,12 +222,23 @@ class ProfileCollector:
             "handlers": [{"actor": a, "input": i, **summarize(v, 1e-3), "drops": drops((a, i))}
                          for (a, i), v in sorted(self.handlers.items())],
             "chains": [{"chain": c, **summarize(v, 1e-3)} for c, v in sorted(self.chains.items())],
+            "split": self.split(),
             "events": dict(self.events),
+            "skipped": {"profiler": dict(self.skipped), "actors": dict(self.node_skipped)},
             "units": "microseconds",
         }
 
     def close(self) -> None:
         self.socket.close()
+
+
+def _is_int(v) -> bool:
+    return type(v) is int
+
+
+def _is_stamp(s) -> bool:
+    return (isinstance(s, list) and len(s) == 3 and isinstance(s[0], str)
+            and _is_int(s[1]) and _is_int(s[2]))
 
 
 def _fmt(v) -> str:
@@ -135,10 +274,50 @@ def format_report(rep: dict) -> str:
           [dict(r, name=f"{r['actor']}.{r['input']}") for r in rep["handlers"]], "name")
     lines.append("")
     table("end to end (chain)", rep["chains"], "chain")
+    # the text shows the chains that close a loop (sensor to action) when there are any,
+    # else every chain; the JSON has them all
+    splits = rep.get("split", [])
+    loops = [e for e in splits if _closes_loop(e["chain"])]
+    for entry in loops or splits:
+        lines.append("")
+        lines.extend(format_split(entry))
+    if loops and len(loops) < len(splits):
+        lines.append(f"({len(splits) - len(loops)} more chain split(s) in --json)")
     if rep["events"]:
         lines.append("")
         lines.append("events: " + ", ".join(f"{k}={v}" for k, v in sorted(rep["events"].items())))
     return "\n".join(lines)
+
+
+COMPONENT_TITLES = {"queueing": "queueing", "wakeup": "wake-up", "transport": "transport",
+                    "handler": "handler"}
+
+
+def _closes_loop(chain: str) -> bool:
+    names = chain.split(" > ")
+    return len(names) > 1 and names[0] == names[-1]
+
+
+def format_split(entry: dict) -> list[str]:
+    """One chain's split: per hop and component p50/p90/p99 (us) and share of the chain."""
+    c = entry["chain_us"]
+    head = (f"chain split: {entry['chain']}  ({entry['resolved']} of {entry['instances']} "
+            f"instances joined")
+    if not entry["hops"]:
+        return [head + "; nothing to split)"]
+    lines = [head + f"; chain p50 {_fmt(c['p50'])} p99 {_fmt(c['p99'])} us, "
+                    f"compute p50 {_fmt(entry['compute_us']['p50'])} us)"]
+    width = max(len(h["hop"]) for h in entry["hops"] + [{"hop": "all hops"}])
+    lines.append(f"{'hop':<{width}}  {'component':<9}  {'p50':>8}  {'p90':>8}  {'p99':>8}"
+                 f"  {'share':>6}")
+    for h in entry["hops"] + [dict(entry["components"], hop="all hops")]:
+        for comp in COMPONENTS:
+            r = h[comp]
+            share = "-" if r["share"] is None else f"{100 * r['share']:.1f}%"
+            lines.append(f"{h['hop'] if comp == 'queueing' else '':<{width}}  "
+                         f"{COMPONENT_TITLES[comp]:<9}  {_fmt(r['p50']):>8}  "
+                         f"{_fmt(r['p90']):>8}  {_fmt(r['p99']):>8}  {share:>6}")
+    return lines
 
 
 def plot_report(rep: dict, collector: ProfileCollector, path: str | Path) -> None:
