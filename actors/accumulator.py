@@ -32,15 +32,21 @@ class Accumulator(Actor):
 
     async def setup(self) -> None:
         self.acc = None
+        self.geometry_key = None       # (event_sensor, frame) meta the accumulator was built for
         self.episode = None
         self.frames_out = 0
 
     def _accumulator(self, meta: dict) -> EventAccumulator:
+        # every packet carries the geometry; it changes only with the scene's image size
+        key = (meta["event_sensor"], meta.get("frame"))
+        if self.acc is not None and key == self.geometry_key:
+            return self.acc
         p = self.params
         out = (p.out_width or meta["frame"][0], p.out_height or meta["frame"][1])
         geometry = EventGeometry(tuple(meta["event_sensor"]), out)
         if self.acc is None or self.acc.geometry != geometry:
             self.acc = EventAccumulator(geometry, p.representation, p.window_s, p.bins, p.clip)
+        self.geometry_key = key
         return self.acc
 
     async def on_events(self, msg: Message) -> None:

@@ -92,7 +92,6 @@ class Camera(Actor):
         self.lh, self.lw = max(1, round(self.h * k)), max(1, round(self.w * k))
         if (self.lh, self.lw) != (self.h, self.w):
             self.luma_renderer = FrameRenderer(self.model, self.lh, self.lw)
-        self.scratch = np.empty((self.h, self.w, 3), np.uint8)
         self.key = (scene_name, config)
         self.log.info("camera: compiled %s %s, %dx%d, camera %s, blur %d", scene_name, config,
                       self.w, self.h, cam, self.blur)
@@ -127,20 +126,24 @@ class Camera(Actor):
         rgb_due = control if self.params.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
         want_rgb = "rgb" in self.wanted and rgb_due
         if self.blur > 1 and "rgb" in self.wanted:
-            self.history.append({k: np.array(a) for k, a in msg.arrays.items()})
+            self._remember(msg.arrays)
         if not (want_luma or want_rgb or (rgb_due and self.wanted & {"depth", "seg"})):
             return
         self._pose(msg.arrays)
         r = self.renderer
-        r.update(self.data, self.cam)
+        # the full-size scene only when something of that size is drawn: between RGB times
+        # only the luma renderer's (mjv_updateScene costs ~10 us a state)
+        if want_rgb or (rgb_due and self.wanted & {"depth", "seg"}) \
+                or self.luma_renderer is None:
+            r.update(self.data, self.cam)
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
         sharp = None          # an unblurred RGB render of this sample, if made
         if want_rgb:
             out = self.reserve("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
             if self.blur > 1:
-                r.rgb_blurred(self.data, self.cam, list(self.history), out["rgb"], self._pose)
-                self._pose(msg.arrays)              # back to this sample's pose
-                r.update(self.data, self.cam)
+                # the history ends with this sample, so its pose is the one left in
+                # self.data and in the scene for the luma, depth and seg renders below
+                r.rgb_blurred(self.data, self.cam, self.history, out["rgb"], self._pose)
             else:
                 sharp = r.rgb(out["rgb"])
             await self.emit("rgb", out, parent=msg,
@@ -165,6 +168,20 @@ class Camera(Actor):
             r.segmentation(out["seg"])
             await self.emit("seg", out, parent=msg, meta=out_meta)
             self.counts["seg"] += 1
+
+    def _remember(self, state: dict) -> None:
+        """Keep a copy of this state for the blur (its arrays are views of the sender's ring
+        slots, which it reuses); the copy the full history evicts is refilled, not freed."""
+        if len(self.history) == self.history.maxlen:
+            old = self.history.popleft()
+            if old.keys() == state.keys() and all(
+                    old[k].shape == a.shape and old[k].dtype == a.dtype
+                    for k, a in state.items()):
+                for k, a in state.items():
+                    np.copyto(old[k], a)
+                self.history.append(old)
+                return
+        self.history.append({k: np.array(a) for k, a in state.items()})
 
     def _close(self) -> None:
         for r in (self.renderer, self.luma_renderer):

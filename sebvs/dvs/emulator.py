@@ -96,6 +96,8 @@ class EventEmulator:
         self.gap_restarts = 0
         # no int64 dt exceeds 2**63 ns; the cap keeps a max_gap_s of 1e300 (inf ns) legal
         self._max_gap_ns = round(min(self.params.max_gap_s * 1e9, 2.0 ** 63))
+        self._eps_key: float | None = None   # dt / tau of the cached low-pass gain table
+        self._eps: np.ndarray | None = None
 
     # ------------------------------------------------------------------ input
     def preprocess(self, frame: np.ndarray) -> np.ndarray:
@@ -197,7 +199,7 @@ class EventEmulator:
         if p.cutoff_hz > 0:
             tau = 1.0 / (2 * math.pi * p.cutoff_hz)
             if luma.dtype == np.uint8:   # one exponential per DN value, not per pixel
-                eps = _lookup(luma, (-np.expm1(-BANDWIDTH * (dt / tau))).astype(np.float32))
+                eps = _lookup(luma, self._eps_table(dt / tau))
             else:
                 eps = (-np.expm1(-((luma + 20.0) / 275.0) * np.float32(dt / tau))
                        ).astype(np.float32)
@@ -219,10 +221,18 @@ class EventEmulator:
         self.lp, self.base, self.t_ns = lp, base, t_ns
         return events
 
+    def _eps_table(self, dt_over_tau: float) -> np.ndarray:
+        """The low-pass gain per DN value for this dt / tau; a camera at a fixed rate sends
+        one dt, so the table is kept until that changes."""
+        if dt_over_tau != self._eps_key:
+            self._eps = (-np.expm1(-BANDWIDTH * dt_over_tau)).astype(np.float32)
+            self._eps_key = dt_over_tau
+        return self._eps
+
     def _crossings(self, lp0, lp1, base, t0, dt_ns):
         """Events of the level crossings between two filtered frames; the new base."""
         diff = lp1 - base
-        out = []
+        pixels, times, sizes = [], [], []   # per polarity, ON then OFF
         new_base = base
         for pol, theta in ((1, self.theta_on), (-1, self.theta_off)):
             over = diff >= theta if pol > 0 else diff <= -theta
@@ -247,16 +257,27 @@ class EventEmulator:
             span = l1 - l0
             with np.errstate(divide="ignore", invalid="ignore"):
                 frac = np.where(np.abs(span) > 1e-12, (level - l0) / span, 1.0)
-            frac = np.clip(np.nan_to_num(frac, nan=1.0), 0.0, 1.0)
+            # clip passes NaN through and sends +-inf to 1 and 0, as clipping after
+            # nan_to_num did; then NaN -> 1. (nan_to_num costs ~14 us a call, 3x this.)
+            np.clip(frac, 0.0, 1.0, out=frac)
+            frac[np.isnan(frac)] = 1.0
             # strictly after the previous frame: its own events sit at t0
             t = t0 + np.maximum(1, _offsets(np.rint(frac * dt_ns), dt_ns))
-            pix = idx[rep]
-            ev = np.empty(rep.size, EVENT_DTYPE)
-            ev["y"], ev["x"] = np.divmod(pix, self.shape[1])
-            ev["t"] = t
-            ev["p"] = pol
-            out.append(ev)
-        events = np.concatenate(out) if out else empty_events()
+            pixels.append(idx[rep])
+            times.append(t)
+            sizes.append((pol, rep.size))
+        # one structured array filled field by field: concatenating structured arrays
+        # costs tens of us a call (field promotion), plain columns next to nothing
+        if not pixels:
+            return empty_events(), new_base
+        pix = np.concatenate(pixels)
+        events = np.empty(pix.size, EVENT_DTYPE)
+        events["y"], events["x"] = np.divmod(pix, self.shape[1])
+        events["t"] = np.concatenate(times)
+        start = 0
+        for pol, size in sizes:
+            events["p"][start:start + size] = pol
+            start += size
         return events, new_base
 
     def _shot_noise(self, luma, t0, dt_ns) -> np.ndarray:

@@ -125,6 +125,7 @@ class FrameRenderer:
             self.rgb(self._scratch)
             self._acc += self._scratch
             n += 1
-        np.floor_divide(self._acc + n // 2, max(n, 1), out=self._acc)
+        self._acc += n // 2                       # round to nearest, in place
+        np.floor_divide(self._acc, max(n, 1), out=self._acc)
         out[...] = self._acc
         return out
