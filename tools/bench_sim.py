@@ -17,7 +17,12 @@ pipeline  real-time factor of the navigation expert topology with the event chai
 Targets (issue 4): nav front camera RGB 160x160 >= 1000 fps; arm wrist camera RGB 320x320
 >= 80 fps; nav expert topology >= 5x real time.
 
-    tools/bench_sim.py [--quick] [--json FILE]
+`--placement isolated,auto` runs the pipeline (and the recording) under each process
+placement (`[topology] placement`, docs/runtime.md "Process groups"), alternating within
+each repeat, and reports the median per placement; `--pipeline-only` skips physics and
+rendering.
+
+    tools/bench_sim.py [--quick] [--json FILE] [--placement P[,P...]] [--pipeline-only]
 """
 from __future__ import annotations
 
@@ -123,10 +128,12 @@ EVENT_CHAIN = [
     'probe.inputs={events={from="accumulator/frames", queue=256}, rgb={from="camera/rgb", '
     'queue=256}}',
     "camera.luma_scale=0.5",
+    # the topology's process groups (placement "auto"): the event chain with the expert
+    'emulator.process="work"', 'accumulator.process="work"', 'probe.process="work"',
 ]
 
 
-def bench_pipeline(seconds: float, dvs_hz: float = 200.0) -> dict:
+def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None = None) -> dict:
     """nav_expert + the event chain at `dvs_hz`, one episode of `seconds`: real-time factor
     from the probe's first to last RGB frame (start-up excluded), event frames against
     control ticks."""
@@ -136,6 +143,8 @@ def bench_pipeline(seconds: float, dvs_hz: float = 200.0) -> dict:
         overrides = [*EVENT_CHAIN, f"probe.path={json.dumps(str(probe))}",
                      f"sim.render_hz={dvs_hz}", f"camera.dvs_hz={dvs_hz}",
                      f"sim.episode_s={seconds}", "sim.episodes=1", 'tracker.path=""']
+        if placement:
+            overrides.append(f"topology.placement={json.dumps(placement)}")
         t0 = time.perf_counter()
         run_topology(ROOT / "topologies" / "nav_expert.toml", overrides, duration_s=300,
                      runs_dir=tmp)
@@ -147,13 +156,15 @@ def bench_pipeline(seconds: float, dvs_hz: float = 200.0) -> dict:
     sim = (rgb[-1]["t_sim"] - rgb[0]["t_sim"]) if len(rgb) > 1 else float("nan")
     return {"topology": f"nav_expert + emulator + accumulator (dvs_hz {dvs_hz:g}, lockstep, "
                         f"160 px)",
+            "placement": placement or "topology's",
             "real_time_factor": round(sim / wall, 2) if wall > 0 else None,
             "ticks": len(rgb), "event_frames": len(events),
             "sim_s": round(sim, 3), "wall_s": round(wall, 3),
             "wall_s_incl_startup": round(total, 2)}
 
 
-def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0) -> dict:
+def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
+                 placement: str | None = None) -> dict:
     """`sebvs record topologies/nav_record.toml` at `dvs_hz` into a temporary dataset:
     simulated seconds per wall second of the whole command (start-up included)."""
     import subprocess
@@ -163,6 +174,8 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0) -> dict:
                "--out", str(Path(tmp) / "ds"), "--runs-dir", str(Path(tmp) / "runs"),
                "--quiet", "--set", f"sim.episode_s={seconds}",
                "--set", f"sim.render_hz={dvs_hz}", "--set", f"camera.dvs_hz={dvs_hz}"]
+        if placement:
+            cmd += ["--set", f"topology.placement={json.dumps(placement)}"]
         t0 = time.perf_counter()
         done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
         wall = time.perf_counter() - t0
@@ -171,6 +184,7 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0) -> dict:
         index = json.loads((Path(tmp) / "ds" / "index.json").read_text())
     frames = sum(e["frames"] for e in index["episodes"])
     return {"topology": f"nav_record (dvs_hz {dvs_hz:g}, recorder paces the sim, HDF5)",
+            "placement": placement or "topology's",
             "real_time_factor": round(episodes * seconds / wall, 2), "episodes": episodes,
             "frames": frames, "wall_s_incl_startup": round(wall, 2)}
 
@@ -181,13 +195,20 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer steps and frames (< 40 s)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--no-pipeline", action="store_true", help="skip the topology run")
+    ap.add_argument("--pipeline-only", action="store_true",
+                    help="only the topology runs (no physics or render figures)")
+    ap.add_argument("--placement", default="",
+                    help="comma-separated [topology] placements to compare, alternating "
+                         "(isolated, auto); default: the topology files' own")
+    ap.add_argument("--repeats", type=int, default=0,
+                    help="pipeline runs per placement (default 1 with --quick, else 3)")
     args = ap.parse_args()
     steps, frames, repeats = (1000, 100, 3) if args.quick else (5000, 300, 5)
     out: dict = {"physics": [], "render": [], "pipeline": [],
                  "config": {"quick": args.quick, "repeats": repeats, "steps": steps,
                             "frames": frames, "statistic": "median"}}
     notes = []
-    for name in SCENES:
+    for name in () if args.pipeline_only else SCENES:
         try:
             for integ in sorted(INTEGRATORS):
                 sps = bench_physics(name, integ, steps, repeats)
@@ -203,7 +224,7 @@ def main() -> int:
     if not args.quick:
         jobs.append(("nav", {"variant": "indoor"}, "front", 640, ["rgb"]))
     jobs.append(("arm", {}, "wrist", 320, ["rgb"]))      # the issue's arm target
-    for name, config, cam, size, kinds in jobs:
+    for name, config, cam, size, kinds in () if args.pipeline_only else jobs:
         try:
             for row in bench_render(name, config, cam, size, kinds, frames, repeats):
                 out["render"].append(row)
@@ -211,20 +232,36 @@ def main() -> int:
                       f"{row['kind']:6s} {row['fps']:8.1f} fps", flush=True)
         except Exception as exc:
             notes.append(f"render {name} {cam}: {type(exc).__name__}: {exc}")
+    placements = [p.strip() for p in args.placement.split(",") if p.strip()] or [None]
+    runs = args.repeats or (1 if args.quick else 3)
     if not args.no_pipeline:
         try:
-            for _ in range(1 if args.quick else 3):
-                row = bench_pipeline(5.0 if args.quick else 20.0)
-                out["pipeline"].append(row)
-                print(f"pipeline {row['topology']}: {row['real_time_factor']}x real time, "
-                      f"{row['event_frames']}/{row['ticks']} event frames", flush=True)
+            for _ in range(runs):
+                for placement in placements:   # alternating: a slow phase hits both
+                    row = bench_pipeline(5.0 if args.quick else 20.0, placement=placement)
+                    out["pipeline"].append(row)
+                    print(f"pipeline [{row['placement']}] {row['topology']}: "
+                          f"{row['real_time_factor']}x real time, "
+                          f"{row['event_frames']}/{row['ticks']} event frames", flush=True)
             if not args.quick:
-                row = bench_record(2, 20.0)
-                out["pipeline"].append(row)
-                print(f"pipeline {row['topology']}: {row['real_time_factor']}x real time "
-                      f"({row['frames']} frames)", flush=True)
+                for _ in range(runs if len(placements) > 1 else 1):
+                    for placement in placements:
+                        row = bench_record(2, 20.0, placement=placement)
+                        out["pipeline"].append(row)
+                        print(f"pipeline [{row['placement']}] {row['topology']}: "
+                              f"{row['real_time_factor']}x real time "
+                              f"({row['frames']} frames)", flush=True)
         except Exception as exc:
             notes.append(f"pipeline: {type(exc).__name__}: {exc}")
+        if len(placements) > 1:
+            out["placement_medians"] = summary = {}
+            for row in out["pipeline"]:
+                key = f"{row['topology']} [{row['placement']}]"
+                summary.setdefault(key, []).append(row["real_time_factor"])
+            for key, rates in summary.items():
+                summary[key] = {"runs": rates, "median": statistics.median(rates)}
+                print(f"median {key}: {summary[key]['median']}x real time "
+                      f"(runs {rates})", flush=True)
     if notes:
         out["notes"] = notes
         for n in notes:

@@ -35,11 +35,15 @@ log = logging.getLogger("sebvs.node")
 
 
 class Node:
-    def __init__(self, spec: dict, actor_factory):
+    def __init__(self, spec: dict, actor_factory, ctx: zmq.asyncio.Context | None = None):
+        """``ctx``: a context shared with the other Nodes of a process group (runtime/group.py),
+        so their inproc endpoints reach each other; the group owns it, and it also
+        installs the signal handlers. None: this Node's own, as in a process of its own."""
         self.spec = spec
         self.name = spec["name"]
         self.token = spec.get("token")    # None: a Node built without a supervisor (tools)
-        self.ctx = zmq.asyncio.Context()                  # control (not latency critical)
+        self.owns_ctx = ctx is None
+        self.ctx = zmq.asyncio.Context() if ctx is None else ctx   # control (not latency critical)
         self.sync_ctx = zmq.Context.shadow(self.ctx.underlying)  # data paths: no futures
         self.outputs = Outputs(self.name)
         self.inputs = Inputs()
@@ -169,8 +173,9 @@ class Node:
 
     async def run(self, supervisor_endpoint: str | None, ready_timeout_s: float = 60) -> int:
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, self.finish, f"signal {sig.name}")
+        if self.owns_ctx:   # alone in its process; a group stops all its members itself
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                loop.add_signal_handler(sig, self.finish, f"signal {sig.name}")
         self._bind_sockets()
         control_task = asyncio.create_task(self._serve_control())
         self.tasks.append(control_task)
@@ -205,9 +210,9 @@ class Node:
             await runner()
         except asyncio.CancelledError:
             raise
-        except Exception:
+        except Exception as exc:
             log.exception("run() of actor %r failed", self.name)
-            self.finish("run() raised")
+            self.finish(clip(f"run() raised {type(exc).__name__}: {exc}", MAX_ERROR_CHARS))
             self.exit_code = 1
             return
         self.event("source_done", {})
@@ -238,7 +243,10 @@ class Node:
         self.outputs.close()
         self.inputs.close()
         self.telemetry_socket.close(linger=0)
-        self.ctx.destroy(linger=0)
+        if self.owns_ctx:
+            self.ctx.destroy(linger=0)
+        else:       # the group's context: its other members still use it
+            self.control.close(linger=0)
 
 
 def _to_builtin(obj):

@@ -45,6 +45,8 @@ class Outputs:
             sock.setsockopt(zmq.SNDHWM, o["hwm"])
             sock.setsockopt(zmq.LINGER, 0)
             sock.bind(o["endpoint"])
+            if o.get("inproc"):   # consumers in this process (a process group) connect here
+                sock.bind(o["inproc"])
             ring = RingWriter(o["ring"], o["slots"]) if o.get("ring") else None
             self.ports[out] = _Output(out, f"{self.name}/{out}".encode(), sock, ring,
                                       o["subscribers"])

@@ -1,13 +1,17 @@
-"""The supervisor: one process per actor, a run directory, ready handshake, clean stop.
+"""The supervisor: one process per actor (or per process group), a run directory, ready
+handshake, clean stop.
 
     runs/<name>-<time>-<id>/run.json        endpoints, pids, status (rewritten atomically)
-    runs/<name>-<time>-<id>/logs/<actor>.log
-    <tmp>/sebvs-<id>/                       ipc sockets, actor specs; removed at the end
+    runs/<name>-<time>-<id>/logs/<process>.log   (an isolated actor's process has its name;
+                                            a group member's <actor>.log links to it)
+    <tmp>/sebvs-<id>/                       ipc sockets, process specs; removed at the end
 
 An actor that exits with code 0 has finished its job (a recorder that wrote its
 episodes, a source that ran out): the run then ends. An actor that dies otherwise is
 reported with its exit code and the end of its log, then restarted or the run stopped,
-as the topology's ``restart`` says.
+as the topology's ``restart`` says. Actors that share a process (``process = "G"``,
+``runtime/group.py``) are restarted together; the group's worker names the member that
+ended it in ``<process>.exit.json`` next to its spec before it exits.
 """
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Callable
@@ -29,7 +33,7 @@ from typing import Callable
 import msgpack
 import zmq
 
-from .params import short_repr
+from .params import clip, short_repr
 from .shm import remove_run_rings
 from .stalls import STALL_PERIOD_S, StallWatch, query_all
 from .topology import Topology, TopologyError, load_topology
@@ -93,13 +97,31 @@ def write_json_atomic(path: Path, data: dict) -> None:
 
 @dataclass
 class _Proc:
+    """One OS process: an isolated actor (``members == [name]``, a plain actor spec) or a
+    process group (a group spec listing its members' specs)."""
     name: str
     spec_path: Path
     log_path: Path
+    members: list[str] = field(default_factory=list)
+    grouped: bool = False
     popen: subprocess.Popen | None = None
     ready: bool = False
+    ready_members: set = field(default_factory=set)
     restarts: int = 0
     exit_code: int | None = None
+
+    @property
+    def outcome_path(self) -> Path:
+        """Where a group's worker says which member ended it (group.py writes it)."""
+        return self.spec_path.with_suffix(".exit.json")
+
+    def outcome(self) -> dict:
+        """The group worker's account of its end: {"actor", "code", "reason"}, or {}."""
+        try:
+            data = json.loads(self.outcome_path.read_text())
+        except (OSError, ValueError):
+            return {}
+        return data if isinstance(data, dict) and data.get("actor") in self.members else {}
 
 
 class Supervisor:
@@ -116,7 +138,8 @@ class Supervisor:
         self.sockdir = socket_root() / f"sebvs-{self.run_id}"
         self.log_level = log_level
         self.ctx = zmq.Context()
-        self.procs: dict[str, _Proc] = {}
+        self.procs: dict[str, _Proc] = {}       # by process name
+        self.proc_of: dict[str, _Proc] = {}     # by actor name
         self.info: dict = {}
         self.status = "new"
         self.failure: str | None = None
@@ -131,13 +154,20 @@ class Supervisor:
     def _plan(self) -> dict[str, dict]:
         topo = self.topo
         active = topo.active
+        self.groups = topo.processes()
+        process_of = {a: g for g, members in self.groups.items() for a in members}
         outputs = {}
         for a in active.values():
             for out in a.cls.outputs:
                 consumers = topo.consumers(a.name, out)
                 depth = max([i.queue for _, i in consumers if i.queue != "latest"] or [2])
+                same = [c for c, _ in consumers if process_of[c] == process_of[a.name]]
                 outputs[(a.name, out)] = {
                     "endpoint": self._endpoint(f"{a.name}.{out}"),
+                    # consumers in the producer's own process connect here: ZeroMQ's
+                    # inproc pipes, no I/O thread, no kernel socket (the shared context
+                    # is the group's); the others connect to `endpoint`
+                    "inproc": f"inproc://{a.name}.{out}" if same else None,
                     "ring": None if topo.transport == "tcp"
                     else f"sebvs-{self.run_id}-{a.name}-{out}",
                     "slots": min(2 * depth + 4, MAX_RING_SLOTS),
@@ -151,7 +181,10 @@ class Supervisor:
                 "name": a.name, "run": a.run, "params": a.params, "cpus": list(a.cpus),
                 "seed": topo.actor_seed(a.name), "clock": topo.clock, "run_id": self.run_id,
                 "consumed": [o for o in a.cls.outputs if topo.consumers(a.name, o)],
-                "inputs": {i.name: {"endpoint": outputs[(i.producer, i.output)]["endpoint"],
+                "process": process_of[a.name],
+                "inputs": {i.name: {"endpoint": _input_endpoint(
+                                        outputs[(i.producer, i.output)],
+                                        process_of[i.producer] == process_of[a.name]),
                                     "topic": f"{i.producer}/{i.output}", "queue": i.queue,
                                     "max_bytes": i.max_bytes,
                                     "hwm": 2 if i.queue == "latest" else i.queue}
@@ -171,10 +204,13 @@ class Supervisor:
         self.info["status"] = self.status
         self.info["failure"] = self.failure
         for name, p in self.procs.items():
-            entry = self.info["actors"][name]
-            entry["pid"] = p.popen.pid if p.popen else None
-            entry["restarts"] = p.restarts
-            entry["exit_code"] = p.exit_code
+            for member in p.members:
+                entry = self.info["actors"][member]
+                entry["pid"] = p.popen.pid if p.popen else None
+                entry["restarts"] = p.restarts
+                entry["exit_code"] = p.exit_code
+            self.info["processes"][name].update(pid=p.popen.pid if p.popen else None,
+                                                restarts=p.restarts, exit_code=p.exit_code)
         write_json_atomic(self.rundir / "run.json", self.info)
 
     # ------------------------------------------------------------------ lifecycle
@@ -195,23 +231,35 @@ class Supervisor:
             "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
             "actors": {n: {"run": s["run"], "control": s["control"],
                            "telemetry": s["telemetry"], "consumed": s["consumed"],
-                           "cpus": s["cpus"],
+                           "cpus": s["cpus"], "process": s["process"],
                            "outputs": {o: v["endpoint"] for o, v in s["outputs"].items()},
                            "inputs": {i: v["topic"] for i, v in s["inputs"].items()},
-                           "log": str(self.rundir / "logs" / f"{n}.log")}
+                           "log": str(self.rundir / "logs" / f"{s['process']}.log")}
                        for n, s in specs.items()},
+            "placement": self.topo.placement,
+            "processes": {g: {"actors": members} for g, members in self.groups.items()},
         }
-        for name, spec in specs.items():
+        for name, members in self.groups.items():
             spec_path = self.sockdir / f"{name}.json"
+            # an actor alone under its own name runs as before; anything else is a group
+            grouped = members != [name]
+            spec = {"process": name, "members": [specs[m] for m in members],
+                    "cpus": specs[members[0]]["cpus"], "supervisor_pid": os.getpid(),
+                    "log_level": self.log_level} if grouped else specs[name]
             spec_path.write_text(json.dumps(spec))
-            self.procs[name] = _Proc(name, spec_path, self.rundir / "logs" / f"{name}.log")
+            self.procs[name] = p = _Proc(name, spec_path, self.rundir / "logs" / f"{name}.log",
+                                         members=list(members), grouped=grouped)
+            for m in members:
+                self.proc_of[m] = p
+                if m != name:   # logs/<actor>.log stays a name to read an actor's log by
+                    (self.rundir / "logs" / f"{m}.log").symlink_to(f"{name}.log")
         self.status = "starting"
         for p in self.procs.values():
             self._spawn(p)
         self._write_info()
         self._await_ready()
-        for p in self.procs.values():
-            self.request(p.name, {"cmd": "start"})
+        for name in self.specs:
+            self.request(name, {"cmd": "start"})
         self.status = "running"
         self.stalls = StallWatch({(a.name, i.name): (i.producer, i.output)
                                   for a in self.topo.active.values()
@@ -239,12 +287,14 @@ class Supervisor:
         cwd = os.getcwd()
         env["PYTHONPATH"] = cwd + os.pathsep + env.get("PYTHONPATH", "") if \
             env.get("PYTHONPATH") else cwd  # users' own actor modules next to the topology
+        p.outcome_path.unlink(missing_ok=True)     # a restarted group's previous account
         with open(p.log_path, "ab") as log:
             p.popen = subprocess.Popen([sys.executable, "-m", "sebvs.runtime.worker",
                                         str(p.spec_path)], stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, env=env,
                                        start_new_session=True)  # Ctrl-C reaches only us
         p.ready = False
+        p.ready_members = set()
         p.exit_code = None
 
     def _await_ready(self) -> None:
@@ -254,7 +304,10 @@ class Supervisor:
                 raise RunFailed(f"interrupted ({self._interrupted}) before all actors were ready")
             dead = self._reap()
             if dead:
-                raise RunFailed(self._death_report(dead[0], "before it was ready"))
+                self.failure = self._death_report(dead[0], "before it was ready")
+                self.info["failed_actor"] = self._failed_actor(dead[0])
+                self.info["failed_process"] = dead[0].name
+                raise RunFailed(self.failure)
             if time.monotonic() > deadline:
                 waiting = [p.name for p in self.procs.values() if not p.ready]
                 raise RunFailed(f"actors not ready after {self.topo.ready_timeout_s:.0f} s: "
@@ -269,10 +322,12 @@ class Supervisor:
                     msg = msgpack.unpackb(self.pull.recv(zmq.NOBLOCK))
                 except zmq.Again:
                     break
-                p = self.procs.get(msg.get("actor"))
+                actor = msg.get("actor") if isinstance(msg, dict) else None
+                p = self.proc_of.get(actor) if isinstance(actor, str) else None
                 if p is not None and msg.get("event") == "ready":
-                    p.ready = True
-                    ready.append(p.name)
+                    p.ready_members.add(actor)
+                    p.ready = len(p.ready_members) == len(p.members)
+                    ready.append(actor)
         return ready
 
     def request(self, actor: str, request: dict, timeout_s: float = 2.0) -> dict | None:
@@ -292,16 +347,32 @@ class Supervisor:
 
     def _remove_rings_of(self, p: _Proc) -> None:
         """A dead producer's rings: readers that still map them keep their pages."""
-        for out, o in self.specs[p.name]["outputs"].items():
-            if o["ring"]:
-                remove_run_rings(self.run_id, f"{p.name}-{out}-{p.popen.pid}-*")
+        for member in p.members:
+            for out, o in self.specs[member]["outputs"].items():
+                if o["ring"]:
+                    remove_run_rings(self.run_id, f"{member}-{out}-{p.popen.pid}-*")
 
     def _death_report(self, p: _Proc, when: str = "") -> str:
         code = p.exit_code
         how = f"signal {signal.Signals(-code).name}" if code is not None and code < 0 \
             else f"exit code {code}"
-        return (f"actor {p.name!r} died {when} ({how}); last lines of {p.log_path}:\n"
-                + _indent(log_tail(p.log_path)))
+        tail = f"; last lines of {p.log_path}:\n" + _indent(log_tail(p.log_path))
+        if not p.grouped:
+            return f"actor {p.name!r} died {when} ({how})" + tail
+        members = ", ".join(p.members)
+        when = f" {when}" if when else ""
+        outcome = p.outcome()
+        if outcome:   # the group's worker said which member ended it, and why
+            return (f"actor {outcome['actor']!r} died{when} ({clip(str(outcome.get('reason')))}"
+                    f"); its process group {p.name!r} ({members}) exited with {how}" + tail)
+        # killed from outside (a signal, os._exit): the worker could not say which member
+        return (f"process group {p.name!r} died{when} ({how}); it ran actors {members}; "
+                f"which one ended it is not known (see its log)" + tail)
+
+    def _failed_actor(self, p: _Proc) -> str | None:
+        """The actor a failure is put down to: the process's own, or the member the group
+        reported; None when a group died without saying."""
+        return p.name if not p.grouped else p.outcome().get("actor")
 
     def wait(self, duration_s: float | None = None,
              on_poll: Callable[[float], None] | None = None) -> int:
@@ -316,7 +387,8 @@ class Supervisor:
             for p in self._reap():
                 self._remove_rings_of(p)
                 if p.exit_code == 0:
-                    self.echo(f"sebvs: actor {p.name!r} finished; ending the run")
+                    who = p.outcome().get("actor", p.name) if p.grouped else p.name
+                    self.echo(f"sebvs: actor {who!r} finished; ending the run")
                     return self.stop()
                 self.echo("sebvs: " + self._death_report(p))
                 if self.topo.restart == "restart" and p.restarts < self.topo.max_restarts:
@@ -327,6 +399,8 @@ class Supervisor:
                     self._write_info()
                 else:
                     self.failure = self._death_report(p)
+                    self.info["failed_actor"] = self._failed_actor(p)
+                    self.info["failed_process"] = p.name
                     return self.stop()
             for name in self._poll_ready(0) if any(not p.ready for p in self.procs.values()) \
                     else []:
@@ -349,11 +423,12 @@ class Supervisor:
         live = [p for p in self.procs.values() if p.popen and p.popen.poll() is None]
         sockets = []
         for p in live:  # ask all at once, then wait for all
-            s = self.ctx.socket(zmq.DEALER)
-            s.setsockopt(zmq.LINGER, 0)
-            s.connect(self.specs[p.name]["control"])
-            s.send(msgpack.packb({"cmd": "stop", "token": self.token}))
-            sockets.append(s)
+            for member in p.members:
+                s = self.ctx.socket(zmq.DEALER)
+                s.setsockopt(zmq.LINGER, 0)
+                s.connect(self.specs[member]["control"])
+                s.send(msgpack.packb({"cmd": "stop", "token": self.token}))
+                sockets.append(s)
         for sig, grace in ((None, STOP_GRACE_S), (signal.SIGTERM, TERM_GRACE_S),
                            (signal.SIGKILL, 1.0)):
             live = [p for p in live if p.popen.poll() is None]
@@ -409,6 +484,11 @@ def control_request(ctx: zmq.Context, endpoint: str, request: dict,
         return msgpack.unpackb(s.recv(), raw=False)
     finally:
         s.close()
+
+
+def _input_endpoint(output: dict, same_process: bool) -> str:
+    """Where a consumer connects: the producer's inproc endpoint from its own process."""
+    return output["inproc"] if same_process and output["inproc"] else output["endpoint"]
 
 
 def _indent(text: str) -> str:

@@ -27,11 +27,15 @@ TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
                  "seed": Annotated[int, Range(ge=0)], "restart": Literal["stop", "restart"],
                  "max_restarts": Annotated[int, Range(ge=0)],
                  "transport": Literal["ipc", "tcp"], "host": str, "description": str,
-                 "queue": QUEUE, "ready_timeout_s": Annotated[float, Range(gt=0)]}
+                 "queue": QUEUE, "ready_timeout_s": Annotated[float, Range(gt=0)],
+                 "placement": Literal["grouped", "isolated", "auto"]}
 # the name becomes a directory under the runs directory: no separators, no leading dot
 RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
-ACTOR_RESERVED = {"run", "inputs", "keep", "cpus"}
+ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process"}
 DEFAULT_QUEUE = 32
+# `placement = "auto"` honours the actors' `process` groups on machines with at most this
+# many CPUs, and runs every actor alone on bigger ones (docs/runtime.md, "Process groups")
+AUTO_GROUP_MAX_CPUS = 4
 
 
 class TopologyError(ValueError):
@@ -61,6 +65,7 @@ class ActorSpec:
     keep: bool = False
     pruned: bool = False
     cpus: tuple[int, ...] = ()      # pin the process (all its threads) to these CPUs; () = OS's choice
+    process: str | None = None      # the process group it shares with others; None = its own
 
 
 @dataclass
@@ -75,6 +80,9 @@ class Topology:
     host: str = "127.0.0.1"
     queue: int | str = DEFAULT_QUEUE     # every input's default: N messages, or "latest"
     ready_timeout_s: float = 60.0
+    # "grouped": the actors' `process` keys say which share a process; "isolated": every
+    # actor alone, whatever they say; "auto": grouped on small machines, else isolated
+    placement: str = "grouped"
     description: str = ""
     actors: dict[str, ActorSpec] = field(default_factory=dict)
 
@@ -85,6 +93,28 @@ class Topology:
     def consumers(self, producer: str, output: str) -> list[tuple[str, InputSpec]]:
         return [(a.name, i) for a in self.active.values() for i in a.inputs.values()
                 if i.producer == producer and i.output == output]
+
+    def processes(self, cpus_available: int | None = None) -> dict[str, list[str]]:
+        """Process name -> the active actors it runs, in topology order.
+
+        An actor with `process = "G"` runs in process G with the others that name G; one
+        without runs alone in a process of its own name. `placement = "isolated"` runs
+        every actor alone whatever its `process` says; `"auto"` groups only on machines
+        with at most AUTO_GROUP_MAX_CPUS CPUs (``cpus_available``, default: the CPUs this
+        process may use), where actors mostly wait for each other's processes to wake up.
+        """
+        if cpus_available is None:
+            cpus_available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+                else (os.cpu_count() or 1)
+        grouped = self.placement == "grouped" or (
+            self.placement == "auto" and cpus_available <= AUTO_GROUP_MAX_CPUS)
+        groups: dict[str, list[str]] = {}
+        for a in self.active.values():
+            if grouped and a.process is not None:
+                groups.setdefault(a.process, []).append(a.name)
+            else:
+                groups[a.name] = [a.name]
+        return groups
 
     def actor_seed(self, name: str) -> int:
         """A per-actor seed derived from the topology seed, stable across runs."""
@@ -287,7 +317,9 @@ def build_topology(doc: dict, path: Path) -> Topology:
         if not isinstance(keep, bool):
             raise TopologyError(f"{where} key 'keep': expected true or false")
         cpus = _parse_cpus(table["cpus"], where) if "cpus" in table else ()
-        topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep, cpus=cpus)
+        process = _parse_process(table["process"], where) if "process" in table else None
+        topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep, cpus=cpus,
+                                      process=process)
     for a in topo.actors.values():
         for inp in a.inputs.values():
             where = f"{path}: [actors.{a.name}] key 'inputs.{inp.name}'"
@@ -300,7 +332,41 @@ def build_topology(doc: dict, path: Path) -> Topology:
                                     f"{', '.join(producer.cls.outputs) or 'none'})")
     _check_cycles(topo)
     _prune(topo)
+    _check_groups(topo)
     return topo
+
+
+def _parse_process(value: Any, where: str) -> str:
+    """The `process` key: the name of the process group the actor shares (it names the
+    group's log file and socket paths, so it follows the actor-name rules)."""
+    if not (isinstance(value, str) and value
+            and value.replace("_", "").replace("-", "").isalnum() and len(value) <= 64):
+        raise TopologyError(f"{where} key 'process': expected a group name of up to 64 "
+                            f"letters, digits, '_' and '-' such as \"vision\", got "
+                            f"{short_repr(value)}")
+    return value
+
+
+def _check_groups(topo: Topology) -> None:
+    """A process group's members must agree on what is per process: its name must not be
+    another actor's (logs and processes are named after both), and `cpus` pins a whole
+    process, so its members must pin the same CPUs (or none)."""
+    members: dict[str, list[ActorSpec]] = {}
+    for a in topo.actors.values():
+        if a.process is not None:
+            members.setdefault(a.process, []).append(a)
+    for group, actors in members.items():
+        where = f"{topo.path}: [actors.{actors[0].name}] key 'process'"
+        names = {a.name for a in actors}
+        if group in topo.actors and group not in names:
+            raise TopologyError(f"{where}: group {group!r} has the name of actor {group!r}, "
+                                f"which is not in it; name the group apart")
+        pins = {a.cpus for a in actors}
+        if len(pins) > 1:
+            shown = ", ".join(f"{a.name}: {list(a.cpus) or 'unpinned'}" for a in actors)
+            raise TopologyError(f"{where}: the members of group {group!r} pin different CPUs "
+                                f"({shown}); `cpus` pins the whole process, so give them "
+                                f"the same list or none")
 
 
 def _prune(topo: Topology) -> None:

@@ -1,7 +1,8 @@
 """Entry point of one actor process: ``python -m sebvs.runtime.worker SPEC.json``.
 
 The supervisor writes the spec (actor class, parameters, endpoints) and starts this
-module with the actor's log file as stdout/stderr.
+module with the actor's log file as stdout/stderr. A group spec (``"members"``: several
+actor specs) runs all of them in this one process (``group.py``).
 """
 from __future__ import annotations
 
@@ -53,18 +54,8 @@ def load_class(path: str):
     return getattr(module, cls_name)
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    with open(argv[0]) as f:
-        spec = json.load(f)
-    _die_with_parent(spec["supervisor_pid"])
-    logging.basicConfig(level=getattr(logging, spec.get("log_level", "INFO")),
-                        format=f"%(asctime)s {spec['name']} %(levelname)s %(name)s: %(message)s",
-                        stream=sys.stderr)
-    from .node import Node  # after logging is configured
-    if spec.get("cpus"):
-        pin_process(spec["cpus"])
-
+def actor_factory(spec: dict):
+    """The function a Node calls with itself to build the actor of ``spec``."""
     cls = load_class(spec["run"])
     params = build_params(cls.Params, spec["params"], where=f"actor {spec['name']!r}")
 
@@ -72,6 +63,26 @@ def main(argv: list[str] | None = None) -> int:
         return cls(spec["name"], params, seed=spec["seed"], clock=spec["clock"],
                    consumed=frozenset(spec["consumed"]), connected=frozenset(spec["inputs"]),
                    node=node)
+    return make_actor
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    with open(argv[0]) as f:
+        spec = json.load(f)
+    _die_with_parent(spec["supervisor_pid"])
+    label = spec["process"] if "members" in spec else spec["name"]
+    logging.basicConfig(level=getattr(logging, spec.get("log_level", "INFO")),
+                        format=f"%(asctime)s {label} %(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    from .node import Node  # after logging is configured
+    if spec.get("cpus"):
+        pin_process(spec["cpus"])
+    if "members" in spec:
+        from .group import run_group
+        return run_group(spec, argv[0], actor_factory)
+
+    make_actor = actor_factory(spec)
 
     async def amain() -> int:
         node = Node(spec, make_actor)
