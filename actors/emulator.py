@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numpy as np
+
 from sebvs.dvs.emulator import EventEmulator
 from sebvs.dvs.params import preset
 from sebvs.runtime import Actor, Message
@@ -39,6 +41,12 @@ class Emulator(Actor):
         episode = msg.meta.get("episode")
         if episode != self.episode:
             self.emulator.reset()
+            if isinstance(episode, int) and episode >= 0:
+                # the fixed pattern an episode draws depends on that episode alone, not on
+                # how many this process played before: a fan-out worker that plays
+                # episodes [a, b) of a run (sebvs/scale) draws what one process playing
+                # them all draws
+                self.emulator.rng = np.random.default_rng([self.emulator.params.seed, episode])
             self.episode = episode
         restarts, prev_t = self.emulator.gap_restarts, self.emulator.t_ns
         try:
