@@ -72,6 +72,10 @@ class Sim(Actor):
         render_hz: Annotated[float, Range(gt=0)] = 200.0
         episode_s: Annotated[float, Range(gt=0)] = 20.0
         episodes: Annotated[int, Range(ge=0)] = 1          # 0: until stopped
+        # index of the run's first episode played here: a worker of a fan-out
+        # (sebvs/scale) plays episodes [first_episode, first_episode + episodes) of the
+        # run, each seeded episode_seed(seed, k) and numbered k as in one process
+        first_episode: Annotated[int, Range(ge=0)] = 0
         # realtime clock: sim seconds per wall second (bounded: the pace is waited in ns)
         realtime_factor: Annotated[float, Range(ge=1e-3, le=1000)] = 1.0
         # lockstep without action: 0 = unpaced
@@ -200,7 +204,7 @@ class Sim(Actor):
         p = self.params
         k = 0
         while not self.stopping.is_set() and (p.episodes <= 0 or k < p.episodes):
-            await self._episode(k)
+            await self._episode(p.first_episode + k)
             k += 1
         if not self.stopping.is_set():
             # The run ends when this source finishes; queued frames downstream would be lost.

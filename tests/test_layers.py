@@ -11,6 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # lower index = lower layer; a package may import only from strictly lower layers
 LAYERS = (
     {"sebvs.runtime", "sebvs.dvs", "sebvs.sim", "sebvs.metrics"},
+    # fan-out of episodes: runs topology shards through the runtime for data and eval
+    {"sebvs.scale"},
     {"sebvs.data", "sebvs.experts"},
     {"sebvs.policy"},
     {"sebvs.eval", "sebvs.numerics"},

@@ -17,6 +17,27 @@ def _record(args) -> int:
     return cmd_record(args)
 
 
+def add_fanout_arguments(parser, what: str) -> None:
+    """--workers, --ray and --max-attempts of `sebvs record` and `sebvs eval` (docs/scale.md)."""
+    parser.add_argument(
+        "--workers", type=int, default=None, metavar="N",
+        help=f"run the {what} on N worker processes at once, each its own topology run "
+             f"(own run directory and sockets) playing a contiguous range of episodes; "
+             f"episode k is seeded from (topology seed, k) whatever the split, so any N "
+             f"gives the same results (default 1: one run, as without the flag; with "
+             f"--ray: tasks in flight, default one per CPU of this machine)")
+    parser.add_argument(
+        "--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+        help="run the workers as Ray tasks: on the cluster at ADDRESS (e.g. "
+             "ray://head:10001 or auto), or on a local Ray started for this command when "
+             "no ADDRESS is given; needs pip install -e .[ray], and on a cluster the "
+             "checkout and the output directory at the same paths on every node")
+    parser.add_argument(
+        "--max-attempts", type=int, default=3, metavar="K",
+        help="with --workers/--ray: run a failed or lost worker's missing episodes again, "
+             "up to K attempts in all, then stop with an error naming them (default 3)")
+
+
 def register(sub) -> None:
     d = sub.add_parser("data", help="dataset tools: check, stats",
                        description="Inspect recorded datasets (one HDF5 file per episode "
@@ -41,14 +62,18 @@ def register(sub) -> None:
                        description="Run a recording topology until its recorder has "
                                    "finished N episodes; numbering resumes in an existing "
                                    "dataset. Shows episodes, frames and speed (simulated "
-                                   "s per wall s).")
+                                   "s per wall s). --workers / --ray play the episodes on "
+                                   "several topology runs at once, with the same episode "
+                                   "files as one (docs/scale.md).")
     r.add_argument("topology", help="topology TOML file with a recorder actor")
     r.add_argument("--episodes", type=int, required=True, metavar="N")
     r.add_argument("--out", required=True, metavar="DIR", help="dataset directory")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="override a parameter (value read as TOML; repeatable)")
     r.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
-                   help="give up after this long (default: none)")
+                   help="give up after this long (default: none; with --workers or --ray: "
+                        "each worker's run)")
     r.add_argument("--runs-dir", default=None)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_fanout_arguments(r, "episodes")
     r.set_defaults(func=_record)

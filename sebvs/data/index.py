@@ -90,6 +90,24 @@ class DatasetIndex:
         self.data["episodes"].append(dict(entry))
         write_json_atomic(self.path, self.data)
 
+    def insert(self, entry: dict) -> None:
+        """``add`` in episode-number order (fan-out workers finish out of order): the
+        index lists a dataset's episodes as one process recording them would."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if any(e["file"] == entry["file"] for e in self.data["episodes"]):
+            raise ValueError(f"{entry['file']} is already in {self.path}")
+        self.data["episodes"].append(dict(entry))
+        if all(EPISODE_RE.match(e["file"]) for e in self.data["episodes"]):
+            # stable: a name outside the scheme would keep the order as written
+            self.data["episodes"].sort(
+                key=lambda e: int(EPISODE_RE.match(e["file"]).group(1)))
+        write_json_atomic(self.path, self.data)
+
+    def numbers(self) -> set[int]:
+        """Episode numbers the index lists."""
+        return {int(m.group(1)) for e in self.data["episodes"]
+                if (m := EPISODE_RE.match(e["file"]))}
+
     def adopt_unindexed(self) -> list[str]:
         """Index finished episode files that the index lacks; returns their names.
 

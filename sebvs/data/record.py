@@ -7,16 +7,36 @@ The recorder ends the run after N finished episodes; numbering resumes in an exi
 dataset. A topology seed in the test split's range (sebvs/data/splits.py) is refused
 before anything starts: held-out episodes stay held out only if no recording ever makes
 them.
+
+Fan-out (``--workers N``, ``--ray [ADDRESS]``; docs/scale.md): the N episodes of the run
+are split into contiguous ranges [a, b), one per worker (sebvs/scale). A worker runs the
+topology with the sim's ``first_episode = a`` and ``episodes = b - a``, so episode k is
+seeded episode_seed(topology seed, k) and numbered k whatever the split, and its recorder
+writes into a staging directory of its own, ``<out>/.staging/<shard>/`` (same filesystem:
+moves are renames). The driver adopts each finished file as soon as it appears: it reads
+the file's ``sim_episode`` attribute (k), renames it to ``episode_<base + k>.h5`` in the
+dataset (base: the dataset's next number when the run began) and adds it to index.json
+(atomic rewrite, in number order). A worker that fails or is lost is run again for the
+episodes still missing, a bounded number of times. A driver that dies loses nothing
+finished: the next ``sebvs record`` into the dataset first adopts what the staging
+directories hold (each names its base in shard.json), then numbers on from there.
 """
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import json
+import os
+import secrets
+import shutil
 import signal
 import sys
 import time
 from pathlib import Path
 
 RECORDER_CLASS = "actors.recorder:Recorder"
+STAGING = ".staging"        # <out>/.staging/<shard>/: where fan-out workers record
+SHARD_INFO = "shard.json"   # in each: {"base", "first", "stop"}
 
 
 def find_recorder(topo) -> str:
@@ -91,6 +111,19 @@ def cmd_record(args) -> int:
         return 2
     if warning:
         print(f"sebvs record: warning: {warning}", file=sys.stderr)
+    if args.workers is not None and args.workers < 1:
+        print(f"sebvs record: --workers must be at least 1, got {args.workers}",
+              file=sys.stderr)
+        return 2
+    if args.ray is not None and importlib.util.find_spec("ray") is None:
+        print("sebvs record: --ray needs Ray, which is not installed: pip install -e .[ray]",
+              file=sys.stderr)
+        return 2
+    for adopted in adopt_staged(out):
+        print(f"sebvs record: adopted {adopted}, finished by a worker of an earlier run",
+              file=sys.stderr)
+    if (args.workers or 1) > 1 or args.ray is not None:
+        return record_fanout(args, topo, name, out, overrides)
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
     echo = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     sup = Supervisor(topo, runs_dir=args.runs_dir, echo=echo)
@@ -129,3 +162,183 @@ def cmd_record(args) -> int:
           f"{wall:.1f} s wall; dataset {out} now holds "
           f"{len(index.episodes()) if index else 0} episode(s)")
     return 0 if code == 0 and len(new) >= args.episodes else 1
+
+
+# ------------------------------------------------------------------------- fan-out
+def first_episode_actor(topo) -> str:
+    """The topology's episode source: the actor with a ``first_episode`` parameter (the
+    sim), which a fan-out worker tells where its range starts."""
+    names = [n for n, a in topo.actors.items() if not a.pruned
+             and dataclasses.is_dataclass(getattr(a.cls, "Params", None))
+             and "first_episode" in {f.name for f in dataclasses.fields(a.cls.Params)}]
+    if len(names) != 1:
+        raise LookupError(f"{topo.path}: --workers and --ray need one episode source with a "
+                          f"first_episode parameter (actors.sim:Sim), found "
+                          f"{names or 'none'}")
+    return names[0]
+
+
+def _sim_episode(path: Path) -> int | None:
+    from .episode import open_episode
+    try:
+        with open_episode(path) as ep:
+            k = ep.attrs.get("sim_episode")
+    except Exception:       # unreadable: left where it is, for `sebvs data check`
+        return None
+    return int(k) if isinstance(k, (int, float)) or str(k).isdigit() else None
+
+
+def adopt_stage(stage: Path, index, have: set[int] | None = None) -> list[int]:
+    """Move the finished episode files of one staging directory into the dataset.
+
+    A file showing episode k of its run becomes ``episode_<base + k>.h5`` (base from the
+    directory's shard.json) and is indexed after the rename, so a crash between the two
+    leaves a whole, unindexed file that ``adopt_unindexed`` picks up. Files for episodes
+    outside the shard's range, or for a number the dataset already has (a retried
+    range), are deleted. Returns the episode indices k adopted.
+    """
+    from .index import EPISODE_RE, episode_name, make_entry
+    info_path = stage / SHARD_INFO
+    if not info_path.exists():
+        return []
+    info = json.loads(info_path.read_text())
+    have = index.numbers() if have is None else have
+    adopted = []
+    for p in sorted(stage.iterdir()):
+        m = EPISODE_RE.match(p.name)
+        if not m or m.group(2):
+            continue            # .partial: in progress, or lost with its worker
+        k = _sim_episode(p)
+        if k is None:
+            continue
+        number = info["base"] + k
+        dest = index.root / episode_name(number)
+        if not info["first"] <= k < info["stop"] or number in have or dest.exists():
+            p.unlink()
+            continue
+        os.replace(p, dest)
+        index.insert(make_entry(dest))
+        have.add(number)
+        adopted.append(k)
+    return adopted
+
+
+def adopt_staged(out: Path) -> list[str]:
+    """Adopt what every staging directory of `out` holds (workers of a driver that died)
+    and remove them; returns the dataset file names adopted."""
+    from .index import DatasetIndex, episode_name
+    root = out / STAGING
+    if not root.is_dir():
+        return []
+    index = DatasetIndex(out)
+    index.adopt_unindexed()
+    names = []
+    for stage in sorted(p for p in root.iterdir() if p.is_dir()):
+        info = stage / SHARD_INFO
+        base = json.loads(info.read_text())["base"] if info.exists() else 0
+        names += [episode_name(base + k) for k in adopt_stage(stage, index)]
+        shutil.rmtree(stage, ignore_errors=True)
+    _remove_if_empty(root)
+    return names
+
+
+def _remove_if_empty(path: Path) -> None:
+    try:
+        path.rmdir()
+    except OSError:
+        pass
+
+
+def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) -> int:
+    """`sebvs record` over workers: see the module docstring."""
+    from tqdm import tqdm
+
+    from sebvs.scale import RayMissing, Shard, ShardsLost, Task, fan_out, split_episodes
+    from .index import INDEX, INDEX_VERSION, DatasetIndex, write_json_atomic
+
+    try:
+        sim = first_episode_actor(topo)
+    except LookupError as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
+    out = out.resolve()
+    index = DatasetIndex(out)
+    index.adopt_unindexed()
+    base = index.next_episode_number()
+    have = index.numbers()
+    run_token = secrets.token_hex(3)
+    stages: dict[Shard, Path] = {}
+    runs_dir = str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve())
+    topology = str(Path(args.topology).resolve())
+    n = args.episodes
+    parts = args.workers if args.workers else (os.cpu_count() or 1)
+    shards = [Shard("recording", a, b) for a, b in split_episodes(0, n, parts)]
+    bar = tqdm(total=n, unit="ep", desc="recording", disable=args.quiet, dynamic_ncols=True)
+    done: set[int] = set()
+
+    def task_of(shard: Shard) -> Task:
+        stage = out / STAGING / f"{run_token}-{shard.first}-{shard.stop}-try{shard.attempt}"
+        stage.mkdir(parents=True, exist_ok=True)
+        (stage / SHARD_INFO).write_text(json.dumps(
+            {"base": base, "first": shard.first, "stop": shard.stop}))
+        if index.task is not None:
+            # the worker's recorder then refuses a stream of another task, as it would in
+            # the dataset itself
+            write_json_atomic(stage / INDEX, {"version": INDEX_VERSION, "task": index.task,
+                                              "episodes": []})
+        stages[shard] = stage
+        size = shard.stop - shard.first
+        return Task(str(shard), topology,
+                    (*overrides, f"{recorder}.out={json.dumps(str(stage))}",
+                     f"{recorder}.episodes={size}", f"{sim}.first_episode={shard.first}",
+                     f"{sim}.episodes={size}"),
+                    runs_dir, timeout_s=args.timeout)
+
+    def adopt(shard: Shard) -> None:
+        done.update(adopt_stage(stages[shard], index, have))
+        bar.update(len(done) - bar.n)
+
+    def collect(shard: Shard, result: dict | None) -> list[int]:
+        adopt(shard)
+        shutil.rmtree(stages.pop(shard), ignore_errors=True)
+        return [k for k in range(shard.first, shard.stop) if base + k not in have]
+
+    def poll() -> None:
+        for shard in list(stages):
+            adopt(shard)        # at once: a driver that dies now loses nothing finished
+
+    where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
+        f"{args.workers} local workers"
+    print(f"sebvs record: {topo.name} -> {out} (first episode {base:04d}), {len(shards)} "
+          f"shard(s) on {where}", file=sys.stderr)
+    t0 = time.monotonic()
+    code = 0
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        fan_out(shards, task_of, collect, workers=args.workers, ray=args.ray,
+                max_attempts=getattr(args, "max_attempts", 3), on_poll=poll,
+                echo=lambda text: tqdm.write(text, file=sys.stderr))
+    except (ShardsLost, RayMissing) as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        code = 1
+    except KeyboardInterrupt:
+        print("sebvs record: interrupted; finished episodes kept", file=sys.stderr)
+        code = 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        bar.close()
+        for stage in stages.values():
+            shutil.rmtree(stage, ignore_errors=True)
+        _remove_if_empty(out / STAGING)
+    wall = time.monotonic() - t0
+    new = [e for e in DatasetIndex(out).episodes()
+           if int(e["file"].split("_")[1].split(".")[0]) >= base]
+    frames = sum(e["frames"] for e in new)
+    print(f"sebvs record: {len(new)} of {n} episode(s) recorded, {frames} frames, "
+          f"{wall:.1f} s wall; dataset {out} now holds {len(DatasetIndex(out).episodes())} "
+          f"episode(s)")
+    return code if code else (0 if len(new) >= n else 1)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -16,9 +17,12 @@ def _cmd_eval(args) -> int:
                     split=args.split, seed=args.seed, checkpoints=args.checkpoints,
                     expert=not args.no_expert,
                     baseline=not args.no_baseline,
-                    extra=args.set, video=args.video, video_episodes=args.video_episodes)
+                    extra=args.set, video=args.video, video_episodes=args.video_episodes,
+                    workers=args.workers, ray=args.ray, max_attempts=args.max_attempts)
     try:
         plan.validate()
+        if plan.ray is not None and importlib.util.find_spec("ray") is None:
+            raise ValueError("--ray needs Ray, which is not installed: pip install -e .[ray]")
         _check_checkpoints(plan)
     except (ValueError, OSError) as exc:
         if getattr(args, "debug", False):
@@ -44,6 +48,7 @@ def _check_checkpoints(plan) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from sebvs.data.cli import add_fanout_arguments
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
     from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS, NAV_SCENARIOS
     e = sub.add_parser(
@@ -54,7 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "arm: single- or multi-object), and write report.md (the paper's Table 4 "
                     "or 5), results.json and plots. The arm's episodes end with the sim "
                     "grasping the last predicted pose. An interrupted evaluation resumes: "
-                    "finished runs are kept.")
+                    "finished runs are kept. --workers / --ray play the runs and episodes "
+                    "on several topology runs at once, with the same results.json "
+                    "(docs/scale.md).")
     e.add_argument("--task", choices=["nav", "arm"], default="nav")
     e.add_argument("--modalities", default="rgb,event,rgb+event",
                    help="comma-separated: rgb, event, rgb+event")
@@ -93,4 +100,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="extra topology overrides for every run")
     e.add_argument("--out", required=True, help="output directory")
+    add_fanout_arguments(e, "evaluation's runs and episodes")
     e.set_defaults(func=_cmd_eval)

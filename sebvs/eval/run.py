@@ -15,6 +15,11 @@ this topology seed is skipped; one that holds fewer is run again from its first 
 (runs are short and episodes are seeded, so the numbers are the same). With `video`, a
 run whose videos are missing is run again too.
 
+Fan-out (`workers`, `ray`; docs/scale.md): the runs' episodes are played as shards on
+worker processes or Ray tasks (`run_fanout`), each shard episodes [a, b) of one run with
+the seeds and numbers one process would give them, merged in episode order: the same
+results.json for any worker count.
+
 Videos (`video`): the overrides add a video writer (actors/video.py) to the run, writing
 <out>/videos/<condition>[__<scenario>]__<modality>__ep<k>.mp4 for the first `video_episodes`
 episodes, with the event frames wired to it for the modalities that use them. Without
@@ -23,6 +28,8 @@ episodes, with the event frames wired to it for the modalities that use them. Wi
 from __future__ import annotations
 
 import json
+import os
+import secrets
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -134,6 +141,10 @@ class EvalPlan:
     extra: list[str] = field(default_factory=list)
     video: bool = False          # one MP4 per episode of each run ...
     video_episodes: int = 1      # ... for its first K episodes
+    # fan-out (sebvs/scale, docs/scale.md): None / 1 runs one topology at a time, here
+    workers: int | None = None
+    ray: str | None = None       # "" a local Ray, else a cluster address
+    max_attempts: int = 3        # per shard, then the evaluation stops naming its episodes
 
     def __post_init__(self) -> None:
         spec = TASKS.get(self.task)
@@ -188,6 +199,14 @@ class EvalPlan:
             raise ValueError(f"--clock {self.clock!r} is not lockstep or realtime")
         if self.video and self.video_episodes < 1:
             raise ValueError("--video-episodes must be at least 1")
+        if self.workers is not None and self.workers < 1:
+            raise ValueError(f"--workers must be at least 1, got {self.workers}")
+        if self.max_attempts < 1:
+            raise ValueError(f"--max-attempts must be at least 1, got {self.max_attempts}")
+
+    @property
+    def fans_out(self) -> bool:
+        return (self.workers or 1) > 1 or self.ray is not None
 
     def runs(self) -> list[Run]:
         mods = ((["expert"] if self.expert else []) + ([BASELINE] if self.baseline else [])
@@ -323,18 +342,111 @@ def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
     return episodes
 
 
+def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
+    """Every run's episodes as shards on workers (sebvs/scale), merged in episode order.
+
+    A run is split into ceil(workers / runs) contiguous episode ranges (several runs fill
+    the workers first, each started once); a shard plays episodes [a, b) of its run
+    (sim.first_episode = a: the seeds and episode numbers of one process) and its tracker
+    writes <out>/episodes/.shards/<run>.<token>.<a>-<b>.try<n>.jsonl. The driver keeps
+    the lines of the shard's episodes and, once a run has all N, writes the run's episode
+    file sorted by episode (tmp file + rename): the same lines whatever the split or the
+    order the workers finished in. A run that is not complete is rerun whole on resume,
+    as without workers.
+    """
+    from ..scale import RayMissing, Shard, ShardsLost, Task, fan_out, split_episodes
+    if not runs:
+        return
+    shard_dir = (plan.out / "episodes" / ".shards").resolve()
+    shard_dir.mkdir(parents=True, exist_ok=True)
+    token = secrets.token_hex(3)
+    workers = plan.workers or (os.cpu_count() or 1)
+    parts = max(1, -(-workers // len(runs)))
+    lines: dict[Run, dict[int, dict]] = {run: {} for run in runs}
+    live: dict[Shard, Path] = {}
+    shards = []
+    for run in runs:
+        plan.episode_file(run).unlink(missing_ok=True)
+        if plan.video:      # as run_one: a rerun leaves no stale videos behind
+            for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
+                old.unlink()
+        shards += [Shard(run, a, b) for a, b in split_episodes(0, plan.episodes, parts)]
+
+    def task_of(shard: Shard) -> Task:
+        path = shard_dir / (f"{shard.job.key}.{token}.{shard.first}-{shard.stop}"
+                            f".try{shard.attempt}.jsonl")
+        path.unlink(missing_ok=True)
+        live[shard] = path
+        topology, overrides = plan.overrides(shard.job)
+        return Task(str(shard), str(Path(topology).resolve()),
+                    (*overrides, f"tracker.path={json.dumps(str(path))}",
+                     f"sim.first_episode={shard.first}",
+                     f"sim.episodes={shard.stop - shard.first}"),
+                    str((plan.out / "runs").resolve()))
+
+    def progress() -> None:
+        running = sum(len(_read_episodes(p, plan.seed)) for p in live.values())
+        done = sum(len(v) for v in lines.values())
+        delta = skipped + done + running - bar.n
+        if delta > 0:       # an update of 0 would redraw the bar every poll
+            bar.update(delta)
+
+    def collect(shard: Shard, result: dict | None) -> list[int]:
+        path = live.pop(shard)
+        have = lines[shard.job]
+        for rec in _read_episodes(path, plan.seed):
+            k = rec.get("episode")
+            if isinstance(k, int) and shard.first <= k < shard.stop:
+                have.setdefault(k, rec)
+        path.unlink(missing_ok=True)
+        if len(have) == plan.episodes:
+            _write_lines_atomic(plan.episode_file(shard.job),
+                                [have[k] for k in sorted(have)])
+        progress()
+        return [k for k in range(shard.first, shard.stop) if k not in have]
+
+    skipped = bar.n             # episodes of the runs finished before (resume)
+    try:
+        fan_out(shards, task_of, collect, workers=plan.workers, ray=plan.ray,
+                max_attempts=plan.max_attempts, on_poll=progress,
+                echo=lambda text: tqdm.write(text))
+    except (ShardsLost, RayMissing) as exc:
+        raise RunFailed(str(exc)) from None
+    finally:
+        for path in live.values():
+            path.unlink(missing_ok=True)
+        try:
+            shard_dir.rmdir()
+        except OSError:
+            pass
+
+
+def _write_lines_atomic(path: Path, records: list[dict]) -> None:
+    """JSON lines as the tracker writes them, replacing `path` whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text("".join(json.dumps(rec) + "\n" for rec in records))
+    os.replace(tmp, path)
+
+
 def evaluate(plan: EvalPlan) -> dict:
     plan.validate()
     plan.out.mkdir(parents=True, exist_ok=True)
     runs = plan.runs()
     bar = tqdm(total=len(runs) * plan.episodes, unit="episode", desc="eval")
+    todo = []
     for run in runs:
-        bar.set_postfix_str(str(run))
         have = _read_episodes(plan.episode_file(run), plan.seed)
         if len(have) >= plan.episodes and not plan.videos_missing(run):
             bar.update(plan.episodes)
             continue
-        run_one(plan, run, bar)
+        todo.append(run)
+    if plan.fans_out:
+        run_fanout(plan, todo, bar)
+    else:
+        for run in todo:
+            bar.set_postfix_str(str(run))
+            run_one(plan, run, bar)
     bar.close()
     rng = plan.seed_range
     results = {"task": plan.task, "clock": plan.clock, "split": plan.split,

@@ -1,0 +1,168 @@
+#!/usr/bin/env python3
+"""Fan-out of episodes (issue 17): episodes per second against the number of workers.
+
+eval     `sebvs eval --task nav`, one condition (nominal) and scenario (indoor): the
+         expert, the no-action baseline and the three shipped policies, E short episodes
+         each (lockstep), timed whole (process start to results.json)
+record   `sebvs record topologies/nav_record.toml`, E short episodes (lockstep)
+
+Each runs at workers 1, 2, 4, ... up to os.cpu_count() (the local pool, `--workers N`);
+each figure is the median wall time of `--repeats` runs, alternating the worker counts
+within a repeat so a slow phase of a shared machine hits all of them. Reported per job:
+episodes per second, speed-up against workers 1. Ray: the eval again with
+`--ray --workers 2` (a local Ray started by the command); its overhead per episode is
+(Ray wall - pool wall at 2 workers) / episodes, as a fraction of an episode's wall time at
+one worker, with and without Ray's start-up (timed alone: ray.init + shutdown). The load
+average before and after each job is recorded: on a shared machine the speed-up is
+depressed by whatever else runs.
+
+Targets (issue 17): speed-up at 2 workers >= 1.7x on a 2-core machine, >= 0.8 x workers on
+16 cores; Ray's overhead per episode < 5 % of an episode's wall time.
+
+    tools/bench_scale.py [--quick] [--repeats N] [--json FILE] [--no-ray]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tools.benchio import print_report  # noqa: E402
+
+
+def worker_counts() -> list[int]:
+    """1, 2, 4, ... and the core count itself."""
+    cores = os.cpu_count() or 1
+    counts, n = [1], 2
+    while n < cores:
+        counts.append(n)
+        n *= 2
+    if cores > 1:
+        counts.append(cores)
+    return sorted(set(counts))
+
+
+def timed(cmd: list[str], cwd: Path) -> float:
+    """Wall seconds of one command; its output kept only when it fails."""
+    t0 = time.monotonic()
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    wall = time.monotonic() - t0
+    if proc.returncode != 0:
+        tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-15:])
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{tail}")
+    return wall
+
+
+def eval_cmd(out: Path, episodes: int, episode_s: float, fanout: list[str]) -> list[str]:
+    return [sys.executable, "-m", "sebvs.cli", "eval", "--task", "nav", "--conditions",
+            "nominal", "--scenarios", "indoor", "--episodes", str(episodes),
+            "--set", f"sim.episode_s={episode_s}", "--out", str(out), *fanout]
+
+
+def record_cmd(out: Path, episodes: int, episode_s: float, fanout: list[str]) -> list[str]:
+    return [sys.executable, "-m", "sebvs.cli", "record", "topologies/nav_record.toml",
+            "--episodes", str(episodes), "--out", str(out), "--runs-dir",
+            str(out.parent / "runs"), "--quiet", "--set", f"sim.episode_s={episode_s}",
+            *fanout]
+
+
+def ray_start_s() -> float | None:
+    """Seconds to start and stop a local Ray (what `--ray` pays once per command)."""
+    code = ("import time, ray; t = time.monotonic(); "
+            "ray.init(include_dashboard=False, log_to_driver=False); ray.shutdown(); "
+            "print(time.monotonic() - t)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    return float(proc.stdout.split()[-1]) if proc.returncode == 0 else None
+
+
+def load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def bench_job(name: str, make_cmd, episodes_total: int, episodes: int, episode_s: float,
+              counts: list[int], repeats: int, tmp: Path, ray: bool) -> dict:
+    variants = [(f"workers {n}", [] if n == 1 else ["--workers", str(n)]) for n in counts]
+    if ray:
+        variants.append(("ray workers 2", ["--ray", "--workers", "2"]))
+    walls: dict[str, list[float]] = {label: [] for label, _ in variants}
+    row: dict = {"job": name, "episodes": episodes_total, "episode_s": episode_s,
+                 "load_before": load()}
+    for r in range(repeats):
+        for label, fanout in variants:      # alternating within a repeat
+            out = tmp / f"{name}-{label.replace(' ', '')}-{r}"
+            wall = timed(make_cmd(out, episodes, episode_s, fanout), ROOT)
+            walls[label].append(round(wall, 2))
+            print(f"{name} [{label}] {wall:.1f} s, "
+                  f"{episodes_total / wall:.3f} episodes/s (load {load()[0]})", flush=True)
+    row["load_after"] = load()
+    w1 = statistics.median(walls["workers 1"])
+    row["runs"] = {}
+    for label, _ in variants:
+        med = statistics.median(walls[label])
+        row["runs"][label] = {"wall_s": walls[label], "median_wall_s": round(med, 2),
+                              "episodes_per_s": round(episodes_total / med, 4),
+                              "speedup": round(w1 / med, 3)}
+    if ray:
+        pool = statistics.median(walls["workers 2"])
+        ray_wall = statistics.median(walls["ray workers 2"])
+        episode_wall = w1 / episodes_total       # one episode's wall time, one worker
+        start = ray_start_s()
+        per_ep = (ray_wall - pool) / episodes_total
+        row["ray_overhead"] = {
+            "per_episode_s": round(per_ep, 3),
+            "fraction_of_episode": round(per_ep / episode_wall, 4),
+            "ray_start_s": None if start is None else round(start, 2),
+            "per_episode_s_without_start": None if start is None
+            else round((ray_wall - pool - start) / episodes_total, 3),
+            "fraction_without_start": None if start is None
+            else round((ray_wall - pool - start) / episodes_total / episode_wall, 4)}
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--quick", action="store_true",
+                    help="2 eval episodes per run and 4 recorded, 2 s each, one repeat")
+    ap.add_argument("--repeats", type=int, default=0,
+                    help="runs per worker count, median reported (default 1 quick, else 3)")
+    ap.add_argument("--json", metavar="FILE", help="write the results here")
+    ap.add_argument("--no-ray", action="store_true", help="skip the Ray comparison")
+    args = ap.parse_args()
+    repeats = args.repeats or (1 if args.quick else 3)
+    eval_eps, record_eps, episode_s = (2, 4, 2.0) if args.quick else (4, 8, 4.0)
+    ray = not args.no_ray
+    if ray:
+        try:
+            import ray as _  # noqa: F401
+        except ImportError:
+            print("note: Ray not installed (pip install -e .[ray]); no Ray figures",
+                  flush=True)
+            ray = False
+    counts = worker_counts()
+    report: dict = {"config": {"quick": args.quick, "repeats": repeats,
+                               "statistic": "median", "cpu_count": os.cpu_count(),
+                               "worker_counts": counts, "clock": "lockstep"},
+                    "jobs": []}
+    # five runs per condition: expert, no-action baseline, rgb, event, rgb+event
+    eval_runs = 5
+    with tempfile.TemporaryDirectory(prefix="bench_scale-") as tmp:
+        tmp = Path(tmp)
+        report["jobs"].append(bench_job("eval", eval_cmd, eval_runs * eval_eps, eval_eps,
+                                        episode_s, counts, repeats, tmp, ray))
+        report["jobs"].append(bench_job("record", record_cmd, record_eps, record_eps,
+                                        episode_s, counts, repeats, tmp, False))
+    print_report(report, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
