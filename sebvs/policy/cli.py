@@ -1,23 +1,17 @@
-"""`sebvs train`: registered by sebvs/cli.py. torch is imported only when the command runs."""
+"""`sebvs train` and `sebvs train-sweep`: registered by sebvs/cli.py. torch is imported only
+when a command runs."""
 from __future__ import annotations
 
 import argparse
 import sys
 
-SIZE_PRESETS = {"cpu": 160, "paper": 640}
-
 
 def _size(text: str) -> int:
-    if text in SIZE_PRESETS:
-        return SIZE_PRESETS[text]
+    from .inputs import parse_size
     try:
-        size = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is neither a size in pixels nor a preset ({', '.join(SIZE_PRESETS)})")
-    if size <= 0 or size % 16:
-        raise argparse.ArgumentTypeError(f"size {size} must be a positive multiple of 16")
-    return size
+        return parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _cmd_train(args) -> int:
@@ -38,6 +32,39 @@ def _cmd_train(args) -> int:
         print(f"sebvs train: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def _cmd_train_sweep(args) -> int:
+    import importlib.util
+    from pathlib import Path
+
+    from .sweep import plan_sweep, run_sweep
+    from .sweep_grid import load_grid
+    from .sweep_table import SUMMARY_JSON, SUMMARY_MD, format_markdown
+    try:
+        grid = load_grid(args.grid)
+        if args.dry_run:
+            points, records = plan_sweep(grid, args.out)
+            width = max(len(p.name) for p in points)
+            for p in points:
+                r = records[p.name]
+                done = (f"trained before (best val loss {r['best_val_loss']:.5g})"
+                        if r["status"] == "skipped" and r["best_val_loss"] is not None
+                        else "trained before" if r["status"] == "skipped" else "to train")
+                print(f"{p.name:<{width}}  {done}")
+            return 0
+        if args.ray is not None and importlib.util.find_spec("ray") is None:
+            raise ValueError("--ray needs Ray, which is not installed: pip install -e .[ray]")
+        summary = run_sweep(grid, args.out, workers=args.workers, ray=args.ray,
+                            threads=args.threads, device=args.device,
+                            gpus_per_task=args.gpus_per_task, progress=not args.no_progress)
+    except (FileNotFoundError, ValueError) as exc:   # bad grid, data or options: one line
+        print(f"sebvs train-sweep: {exc}", file=sys.stderr)
+        return 2
+    print(format_markdown(summary), end="")
+    out = Path(args.out)
+    print(f"\nsummary: {out / SUMMARY_MD}, {out / SUMMARY_JSON}")
+    return 1 if any(p["status"] == "failed" for p in summary["points"]) else 0
 
 
 def register(subparsers) -> None:
@@ -78,3 +105,60 @@ def register(subparsers) -> None:
                         "bit-reproducible on cpu only)")
     t.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     t.set_defaults(func=_cmd_train)
+
+    w = subparsers.add_parser(
+        "train-sweep", help="run `sebvs train` over a grid of settings, seeds and modalities",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Train one policy per point of a grid, each exactly as `sebvs train`\n"
+                    "would with the point's settings, into OUT/<point name>/, and write\n"
+                    "OUT/sweep.json (every point: settings, status, best validation loss,\n"
+                    "epochs run, seconds, parameters) and OUT/sweep.md (the points and their\n"
+                    "seed groups, sorted by best validation loss).",
+        epilog="""grid file (TOML):
+  task = "nav"                      # nav | arm
+  data = "datasets/nav"             # from the current directory
+  [train]                           # settings shared by every point
+  epochs = 10
+  size = 160                        # or "cpu" / "paper", as sebvs train --size
+  [axes]                            # a list per setting; the grid is their product
+  modality = ["rgb", "event", "rgb+event"]
+  seed = [0, 1, 2]
+  lr = [2e-4, 5e-4]
+
+settings: modality, seed, lr, stem, epochs, batch, size, event_clip, max_frames,
+patience, val_fraction (sebvs train's options; one not given keeps its default).
+A point's directory is named by its modality, seed and other axes, e.g.
+modality=event__seed=1__lr=0.0005. A rerun into the same OUT skips points whose
+checkpoint and config exist (refusing ones trained with other settings) and trains
+failed or unfinished ones again. A failed point is recorded with its error
+(and the traceback in its train.log); the others go on, and the exit status is 1.
+docs/scale.md, "Sweeps".""")
+    w.add_argument("grid", help="grid file (TOML)")
+    w.add_argument("--out", required=True, help="sweep directory: one subdirectory per point")
+    w.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="points trained at once on this machine (default 1: one after another "
+                        "in this process). Each worker is a process of its own with --threads "
+                        "torch threads, pinned to its own CPUs (os.sched_setaffinity) when the "
+                        "machine has N x threads CPUs, else placed by the kernel. With --ray: "
+                        "tasks in flight (default 1 means as many as the cluster has CPUs)")
+    w.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help="train the points as Ray tasks, one per point: on the cluster at "
+                        "ADDRESS, or on a local Ray started for this command when no ADDRESS "
+                        "is given (pip install -e .[ray]; a cluster needs the checkout, the "
+                        "data and OUT at the same paths on every node)")
+    w.add_argument("--threads", type=int, default=None, metavar="T",
+                   help="torch threads per point (default: this machine's CPUs divided among "
+                        "the workers; with --ray 1); a Ray task asks for T CPUs. On the CPU, "
+                        "the same threads give the same weights for any --workers")
+    w.add_argument("--device", default="cpu",
+                   help="torch device of every point, e.g. cuda (default cpu; bit-reproducible "
+                        "on cpu only). Local workers share this machine's device; with --ray "
+                        "each task gets its own GPUs")
+    w.add_argument("--gpus-per-task", type=float, default=None, metavar="G",
+                   help="with --ray and --device cuda: GPUs each task asks Ray for (default 1; "
+                        "0.5 trains two points per GPU)")
+    w.add_argument("--no-progress", action="store_true",
+                   help="no per-point tqdm bars (off anyway when points train at once)")
+    w.add_argument("--dry-run", action="store_true",
+                   help="list the points and which are trained already; train nothing")
+    w.set_defaults(func=_cmd_train_sweep)

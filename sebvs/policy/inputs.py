@@ -29,6 +29,27 @@ MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "
 STREAM_CHANNELS = {"rgb": 3, "events": 2}
 
 
+# input sides by name: the CPU default (100 tokens) and the paper's (1600, for GPUs)
+SIZE_PRESETS = {"cpu": 160, "paper": 640}
+
+
+def parse_size(value: str | int) -> int:
+    """An input side S in px (a positive multiple of 16: the patch size) or a preset name;
+    ValueError says which rule it breaks. `sebvs train --size` and sweep grids share it."""
+    if isinstance(value, str) and value in SIZE_PRESETS:
+        return SIZE_PRESETS[value]
+    try:
+        if isinstance(value, (bool, float)):
+            raise ValueError
+        size = int(value)
+    except ValueError:
+        raise ValueError(f"{value!r} is neither a size in pixels nor a preset "
+                         f"({', '.join(SIZE_PRESETS)})") from None
+    if size <= 0 or size % 16:
+        raise ValueError(f"size {size} must be a positive multiple of 16")
+    return size
+
+
 def channels(modality: str) -> int:
     """Input channels of a modality's model: rgb 3, event 2, rgb+event 5."""
     check_modality(modality)

@@ -259,11 +259,17 @@ def plot_losses(out: str | Path, task: str) -> Path | None:
     return path
 
 
+def settings_for(task: str, **overrides) -> TrainSettings:
+    """The paper's settings for ``task`` with ``overrides`` (TrainSettings fields; None
+    keeps the default): what `train` trains with, and what a sweep records per point."""
+    return replace(paper_settings(task), **{k: v for k, v in overrides.items() if v is not None})
+
+
 def train(data: str | Path, out: str | Path, task: str, modalities: list[str],
           progress: bool = True, log=print, **overrides) -> dict[str, dict]:
     """Train each modality in turn with the paper's settings for ``task`` (``overrides``
     replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64))."""
-    s = replace(paper_settings(task), **{k: v for k, v in overrides.items() if v is not None})
+    s = settings_for(task, **overrides)
     results = {}
     for m in modalities:
         results[m] = train_variant(data, out, m, s, progress=progress, log=log)

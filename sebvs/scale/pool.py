@@ -1,5 +1,9 @@
 """Run shards of episodes in parallel: a local pool of worker processes, or Ray tasks.
 
+The pool runs any picklable job through a worker function (`fan_out`'s `worker`, default
+`run_task`: a topology run); training sweeps (sebvs/policy/sweep.py) give it one training
+point per shard, with nothing to retry. What follows is the episode case it was built for.
+
 A *shard* is episodes [first, stop) of a job (a recording, or one evaluation run). Each
 shard becomes a `Task`: a topology file plus overrides that a worker runs to its end
 through the runtime's Supervisor, in a run directory and with sockets of its own (every
@@ -19,11 +23,14 @@ Backends:
   local  `workers` spawned processes (multiprocessing "spawn": nothing of the driver's
          sockets or threads is inherited). A worker that dies without a result is lost;
          a worker whose driver died stops its run (it watches its parent pid).
+         With `cpu_sets`, each worker process pins itself to one of them (its slot's),
+         so N workers with T threads each do not compete for the same cores.
   ray    Ray tasks on the cluster at `ray` (or a local one started for the call, when
          ray == ""): ``pip install -e .[ray]``; Ray is imported here only. Paths in a Task
          are absolute and each task changes to the driver's working directory, so a
          cluster needs the checkout and the output directory at the same paths on every
-         node (a shared filesystem).
+         node (a shared filesystem). Each task asks Ray for `ray_resources` (default one
+         CPU; a training point: its threads, or GPUs).
 """
 from __future__ import annotations
 
@@ -138,12 +145,26 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _local_worker(task: Task, conn) -> None:
-    """Entry of a spawned worker process: run the task, send its result (or the error)."""
+def disjoint_cpu_sets(workers: int, threads: int) -> list[tuple[int, ...]] | None:
+    """One disjoint set of `threads` CPUs per worker, from the CPUs this process may use,
+    or None when there are fewer than workers x threads of them (pinning would then put
+    two workers on one core while others idle: better leave placement to the kernel)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if workers < 1 or threads < 1 or len(cpus) < workers * threads:
+        return None
+    return [tuple(cpus[i * threads:(i + 1) * threads]) for i in range(workers)]
+
+
+def _local_worker(worker: Callable[[Any], dict], task: Any, conn,
+                  cpus: tuple[int, ...] | None) -> None:
+    """Entry of a spawned worker process: pin it to `cpus` (before torch or anything else
+    starts threads, which inherit the mask), run the task, send its result (or the error)."""
     try:
-        result = run_task(task)
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+        result = worker(task)
     except BaseException as exc:       # noqa: BLE001 - reported to the driver, which retries
-        result = {"label": task.label, "code": None, "rundir": None,
+        result = {"label": getattr(task, "label", None), "code": None, "rundir": None,
                   "failure": f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"}
     try:
         conn.send(result)
@@ -152,11 +173,14 @@ def _local_worker(task: Task, conn) -> None:
 
 
 # ---------------------------------------------------------------------- the driver side
-def fan_out(shards: list[Shard], task_of: Callable[[Shard], Task],
+def fan_out(shards: list[Shard], task_of: Callable[[Shard], Any],
             collect: Callable[[Shard, dict | None], list[int]], *, workers: int = 1,
             ray: str | None = None, max_attempts: int = 3,
             on_poll: Callable[[], None] | None = None,
-            echo: Callable[[str], None] = lambda text: print(text, file=sys.stderr)) -> None:
+            echo: Callable[[str], None] = lambda text: print(text, file=sys.stderr),
+            worker: Callable[[Any], dict] = run_task,
+            cpu_sets: list[tuple[int, ...]] | None = None,
+            ray_resources: dict | None = None) -> None:
     """Run every shard; retry the episodes `collect` reports missing; raise ShardsLost.
 
     `collect(shard, result)` runs in the driver after each shard's worker ended: result
@@ -165,10 +189,18 @@ def fan_out(shards: list[Shard], task_of: Callable[[Shard], Task],
     `workers`: shards run at once (with Ray: at most that many tasks in flight; None
     there means one per CPU of the cluster). `ray`: None for the local pool, "" to start
     a local Ray, or a cluster address. `on_poll` is called every POLL_S (progress).
+
+    `worker(task)` is what runs a shard, in the worker process or Ray task; it must be a
+    module-level function (workers are spawned, Ray pickles it by reference), and a local
+    worker's task a dataclass with a `parent_pid` field, which the pool sets to its own
+    pid so the worker can stop when the driver is gone. `cpu_sets` (local pool only, see
+    `disjoint_cpu_sets()`): one per worker slot, each worker pinned to its slot's CPUs.
+    `ray_resources`: what each Ray task asks for (default {"num_cpus": 1}).
     """
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be at least 1, got {max_attempts}")
-    backend = _RayBackend(ray, workers) if ray is not None else _LocalBackend(workers or 1)
+    backend = (_RayBackend(ray, workers, worker, ray_resources) if ray is not None else
+               _LocalBackend(workers or 1, worker, cpu_sets))
     queue: deque[Shard] = deque(shards)
     lost: dict = {}
     try:
@@ -221,15 +253,22 @@ def _ranges(ks: list[int]) -> str:
 
 
 class _LocalBackend:
-    """Spawned worker processes, one per shard, at most `workers` alive at once."""
+    """Spawned worker processes, one per shard, at most `workers` alive at once; with
+    `cpu_sets`, the worker of slot i (a slot is free again when its worker ends) pinned to
+    cpu_sets[i]."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, worker: Callable[[Any], dict] = run_task,
+                 cpu_sets: list[tuple[int, ...]] | None = None):
         import multiprocessing
         if workers < 1:
             raise ValueError(f"--workers must be at least 1, got {workers}")
+        if cpu_sets is not None and len(cpu_sets) < workers:
+            raise ValueError(f"{len(cpu_sets)} CPU sets for {workers} workers")
         self.workers = workers
+        self.worker = worker
+        self.cpu_sets = cpu_sets
         self.ctx = multiprocessing.get_context("spawn")
-        self.procs: dict = {}       # sentinel -> (process, receiving end, shard)
+        self.procs: dict = {}       # sentinel -> (process, receiving end, shard, slot)
 
     def running(self) -> bool:
         return bool(self.procs)
@@ -237,14 +276,16 @@ class _LocalBackend:
     def has_room(self) -> bool:
         return len(self.procs) < self.workers
 
-    def submit(self, shard: Shard, task: Task) -> None:
+    def submit(self, shard: Shard, task: Any) -> None:
         recv, send = self.ctx.Pipe(duplex=False)
         task = replace(task, parent_pid=os.getpid())
-        proc = self.ctx.Process(target=_local_worker, args=(task, send),
+        slot = min(set(range(self.workers)) - {p[3] for p in self.procs.values()})
+        cpus = self.cpu_sets[slot] if self.cpu_sets else None
+        proc = self.ctx.Process(target=_local_worker, args=(self.worker, task, send, cpus),
                                 name=f"sebvs-worker {shard}", daemon=False)
         proc.start()
         send.close()                # the child holds the only sending end now
-        self.procs[proc.sentinel] = (proc, recv, shard)
+        self.procs[proc.sentinel] = (proc, recv, shard, slot)
 
     def finished(self, timeout_s: float) -> list[tuple[Shard, dict | None]]:
         from multiprocessing.connection import wait
@@ -253,7 +294,7 @@ class _LocalBackend:
             return []
         done = []
         for sentinel in wait(list(self.procs), timeout_s):
-            proc, recv, shard = self.procs.pop(sentinel)
+            proc, recv, shard, _ = self.procs.pop(sentinel)
             proc.join()
             result = None
             try:
@@ -267,7 +308,7 @@ class _LocalBackend:
 
     def stop_all(self) -> None:
         """SIGTERM every worker: each stops its run cleanly and sends what it has."""
-        for proc, _, _ in self.procs.values():
+        for proc, *_ in self.procs.values():
             if proc.is_alive():
                 proc.terminate()
 
@@ -279,7 +320,7 @@ class _LocalBackend:
                 out += self.finished(min(POLL_S, max(0.0, deadline - time.monotonic())))
             except KeyboardInterrupt:
                 break               # a second Ctrl-C: stop waiting
-        for proc, recv, shard in self.procs.values():
+        for proc, recv, shard, _ in self.procs.values():
             proc.kill()
             proc.join()
             recv.close()
@@ -296,7 +337,8 @@ class _LocalBackend:
 class _RayBackend:
     """Ray tasks (one per shard) on a cluster, or on a local Ray started for this call."""
 
-    def __init__(self, address: str, workers: int | None):
+    def __init__(self, address: str, workers: int | None,
+                 worker: Callable[[Any], dict] = run_task, resources: dict | None = None):
         try:
             import ray
         except ImportError:
@@ -311,7 +353,7 @@ class _RayBackend:
         self.workers = workers if workers and workers > 1 else max(1, cpus)
         # no Ray-level retries: a lost task's missing episodes are retried by fan_out, which
         # knows which of them the lost worker had already finished
-        self.remote = ray.remote(max_retries=0, num_cpus=1)(run_task)
+        self.remote = ray.remote(max_retries=0, **(resources or {"num_cpus": 1}))(worker)
         self.refs: dict = {}        # ObjectRef -> shard
 
     def running(self) -> bool:
@@ -320,7 +362,7 @@ class _RayBackend:
     def has_room(self) -> bool:
         return len(self.refs) < self.workers
 
-    def submit(self, shard: Shard, task: Task) -> None:
+    def submit(self, shard: Shard, task: Any) -> None:
         self.refs[self.remote.remote(task)] = shard
 
     def finished(self, timeout_s: float) -> list[tuple[Shard, dict | None]]:
