@@ -47,8 +47,12 @@ def test_report_reads_results_written_before_the_new_rates():
     ep = nav_episode("rgb", 0, 10)
     for key in ("strict_success", "episode_success"):
         del ep["metrics"][key]
-    text = render_report({"task": "nav", "episodes": [ep]})
+    old_rgbe = nav_episode("rgb+event", 0, 10)
+    for key in ("strict_success", "episode_success"):
+        del old_rgbe["metrics"][key]
+    text = render_report({"task": "nav", "episodes": [ep, old_rgbe]})
     assert "| RGB-only | 1 |" in text and "| - | - [-, -] |" in text
+    assert "(strict rate," not in text and "nan" not in text   # nothing to pair on
 
 
 def test_nav_report_renders_tables_and_paired_comparison(tmp_path):
@@ -62,6 +66,9 @@ def test_nav_report_renders_tables_and_paired_comparison(tmp_path):
     assert "| Expert (reference) | 6 |" in text
     assert "| RGB+Event vs RGB-only | 6 | +50.0 |" in text
     assert "6/0/0" in text
+    # the strict rate's own paired table: frames at 0 px are within 50 px, at 70 px not
+    strict = text.split("(strict rate,")[1]
+    assert "| RGB+Event vs RGB-only | 6 | +50.0 |" in strict
     plot_success(results, tmp_path / "s.png")
     assert (tmp_path / "s.png").stat().st_size > 5000
 
