@@ -36,11 +36,17 @@ def test_nav_report_has_the_baseline_row_and_new_columns():
     eps = [nav_episode(m, s, k) for s in range(3)
            for m, k in (("expert", 10), ("no_action", 2), ("rgb", 9))]
     text = render_report({"task": "nav", "episodes": eps})
-    rows = [line for line in text.splitlines() if line.startswith("| ")]
+    tables = text.split("## Condition: nominal")[1]     # below the summary
+    rows = [line for line in tables.splitlines() if line.startswith("| ")]
     assert "Strict (% within 50 px)" in rows[0] and "Episode success" in rows[0]
     names = [r.split("|")[1].strip() for r in rows[1:]]
     assert names == ["Expert (reference)", "No action (baseline)", "RGB-only"]
     assert "| No action (baseline) | 3 |" in text and "| 20.0 [" in text
+    # the summary above the tables: a row per condition, a cell per model (paper rate /
+    # strict / episodes with >= 90 % of frames within the radius)
+    assert "| condition | Expert (reference) | No action (baseline) | RGB-only |" in text
+    assert "| nominal | 100.0 / 100.0 / 3 of 3 | 20.0 / 20.0 / 0 of 3 | " \
+           "90.0 / 90.0 / 3 of 3 |" in text
 
 
 def test_report_reads_results_written_before_the_new_rates():
@@ -53,6 +59,7 @@ def test_report_reads_results_written_before_the_new_rates():
     text = render_report({"task": "nav", "episodes": [ep, old_rgbe]})
     assert "| RGB-only | 1 |" in text and "| - | - [-, -] |" in text
     assert "(strict rate," not in text and "nan" not in text   # nothing to pair on
+    assert "| nominal | 100.0 / - / - | 100.0 / - / - |" in text
 
 
 def test_nav_report_renders_tables_and_paired_comparison(tmp_path):

@@ -148,6 +148,36 @@ def _paired_section(episodes: list[dict], value, label: str) -> list[str]:
             "|---|---|---|---|---|---|", *lines]
 
 
+def _nav_summary(groups: dict) -> list[str]:
+    """One table per scenario, a row per condition and a column per model, each cell
+    `paper rate / strict rate / episodes succeeded`: the whole evaluation at a glance,
+    above the per-condition tables that carry the intervals and paired tests."""
+    lines = []
+    for scen in sorted({s for _, s in groups}):
+        conds = sorted(c for c, s in groups if s == scen)
+        mods = _ordered({e["modality"] for c in conds for e in groups[(c, scen)]})
+        title = "Summary" if scen == "single" else f"Summary: {scen}"
+        lines += [f"## {title}", "",
+                  "Per cell: paper rate (% of frames within 200 px) / strict rate (within "
+                  "50 px) / episodes with >= 90 % of frames within 200 px.", "",
+                  "| condition | " + " | ".join(NAME.get(m, m) for m in mods) + " |",
+                  "|---|" + "---|" * len(mods)]
+        for cond in conds:
+            by_mod = _group(groups[(cond, scen)], "modality")
+            cells = []
+            for m in mods:
+                if (m,) not in by_mod:
+                    cells.append("-")
+                    continue
+                a = aggregate_nav(by_mod[(m,)])
+                won = ("-" if math.isnan(a["episode_success"]) else
+                       f"{round(a['episode_success'] * a['episodes'])} of {a['episodes']}")
+                cells.append(f"{_pct(a['success'])} / {_pct(a['strict_success'])} / {won}")
+            lines.append(f"| {cond} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
 def render_report(results: dict) -> str:
     task = results["task"]
     eps = results["episodes"]
@@ -167,6 +197,7 @@ def render_report(results: dict) -> str:
         groups = defaultdict(list)
         for e in eps:
             groups[(e["condition"], _nav_scenario(e))].append(e)
+        lines += _nav_summary(groups)
         for (cond, scen), group in sorted(groups.items()):
             title = cond if scen == "single" else f"{cond}, {scen}"
             lines += [f"## Condition: {title}", "",
