@@ -257,11 +257,12 @@ def test_control_get_set_errors_and_stats(tmp_path):
         sup.stop()
 
 
-def test_profiler_attaches_and_reports_every_hop(tmp_path):
-    sup = start(tmp_path, SMALL)
+def profile_synthetic_chain(sup, seconds: float) -> dict:
+    """Attach a profiler to a running source > relay > sink topology for ``seconds``, stop
+    the run, check that the report has both hops, both handlers and the chain; the report."""
     try:
         col = ProfileCollector(sup.info)
-        col.poll(1.5)
+        col.poll(seconds)
         rep = col.report()
         col.close()
     finally:
@@ -272,6 +273,11 @@ def test_profiler_attaches_and_reports_every_hop(tmp_path):
     assert rep["chains"][0]["chain"] == "source > relay > sink"
     assert {(h["actor"], h["input"]) for h in rep["handlers"]} == {("relay", "frames"),
                                                                    ("sink", "frames")}
+    return rep
+
+
+def test_profiler_attaches_and_reports_every_hop(tmp_path):
+    rep = profile_synthetic_chain(start(tmp_path, SMALL), 1.5)
     text = format_report(rep)
     assert "source > relay > sink" in text and "p99" in text
 
