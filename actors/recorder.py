@@ -24,7 +24,6 @@ ends the run. A kill loses at most the episode in progress (its .partial file).
 """
 from __future__ import annotations
 
-import asyncio
 import time
 import tomllib
 from dataclasses import dataclass

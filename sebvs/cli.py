@@ -26,7 +26,7 @@ def _seconds(text: str) -> float:
 
 
 def _cmd_run(args) -> int:
-    from .runtime.profiler import ProfileCollector, format_report, plot_report, write_json
+    from .runtime.profiler import ProfileCollector, format_report, write_json
     from .runtime.supervisor import RunFailed, Supervisor
     from .runtime.topology import load_topology
 
