@@ -12,8 +12,9 @@ episodes k < `episodes`. directory "" writes nothing. No topology carries this a
 
 The RGB and the event frame of a tick arrive on separate inputs in either order; ticks
 are written in order once both have arrived. A tick whose event frame is lost (one of a
-later tick is already here, or MAX_PENDING ticks wait behind it) is written without
-overlay; anything arriving for a tick already written is dropped and counted.
+later tick is already here, or MAX_PENDING ticks wait behind it: as deep as the inputs'
+queues) is written without overlay; anything arriving for a tick already written is
+dropped and counted.
 """
 from __future__ import annotations
 
@@ -28,7 +29,11 @@ from sebvs.runtime import Actor, Message, Range
 
 # frames of an episode may trail its end message (they pass the camera and emulator)
 FINALIZE_AFTER_S = 1.0
-MAX_PENDING = 16          # ticks held waiting for their partner frame (1.6 s at 10 Hz)
+# ticks held waiting for their partner frame (25.6 s at 10 Hz, ~20 MB of 160 px RGB). As
+# deep as the inputs' queues (sebvs/eval/run.py: 256): a writer that falls behind drains
+# one socket's backlog before the other's, so a shorter bound took event frames still
+# queued on their socket for lost (8 of 32 ticks without overlay on a loaded machine)
+MAX_PENDING = 256
 
 
 class VideoWriter(Actor):

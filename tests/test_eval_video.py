@@ -199,6 +199,25 @@ def test_actor_without_events_writes_at_once_and_holds_no_backlog(tmp_path):
     assert starved.counts["without_overlay"] == MAX_PENDING + 11
 
 
+def test_a_batch_of_rgb_ahead_of_its_event_frames_is_not_taken_for_loss(tmp_path):
+    # a writer that fell behind reads up to DRAIN_BATCH (64) messages of one input before
+    # the other's: 64 RGB frames, then their 64 event frames, all still to be overlaid
+    from sebvs.runtime.inputs import DRAIN_BATCH
+
+    async def go():
+        actor, _ = make_writer(tmp_path, {"rgb", "events", "episode"})
+        await actor.setup()
+        for tick in range(DRAIN_BATCH):
+            await actor.on_rgb(rgb_msg(tick))
+        for tick in range(DRAIN_BATCH):
+            await actor.on_events(ev_msg(tick))
+        await actor.teardown()
+        return actor
+
+    actor = asyncio.run(go())
+    assert actor.counts["frames"] == DRAIN_BATCH and actor.counts["without_overlay"] == 0
+
+
 def test_actor_with_empty_directory_writes_nothing(tmp_path):
     async def go():
         actor = VideoWriter("video", VideoWriter.Params(), connected=frozenset({"rgb"}),
