@@ -31,13 +31,17 @@ def _cmd_run(args) -> int:
     from .runtime.topology import load_topology
 
     topo = load_topology(args.topology, args.set)
-    sup = Supervisor(topo, runs_dir=args.runs_dir, log_level=args.log_level)
+    sup = Supervisor(topo, runs_dir=args.runs_dir, log_level=args.log_level, host=args.host)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda s, f: sup.interrupt(signal.Signals(s).name))
     collector = None
     try:
         sup.start()
         print(f"sebvs: run {topo.name} ({sup.run_id}) in {sup.rundir}", file=sys.stderr)
+        if sup.host is not None and sup.primary and len(sup.info["hosts"]) > 1:
+            print(f"sebvs: clock offsets of the other hosts in {sup.rundir / 'run.json'} "
+                  f"('hosts'); `sebvs profile {sup.rundir}` corrects hop latencies with them",
+                  file=sys.stderr)
         pruned = [n for n, a in topo.actors.items() if a.pruned]
         if pruned:
             print(f"sebvs: pruned (outputs not consumed): {', '.join(pruned)}", file=sys.stderr)
@@ -186,6 +190,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--runs-dir", default=None,
                    help="where run directories go (default ./runs or $SEBVS_RUNS_DIR)")
     r.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING"])
+    r.add_argument("--host", default=None, metavar="NAME",
+                   help="a topology with [hosts.<name>] tables: run this host's actors "
+                        "(one `sebvs run FILE --host NAME` per host, all with the same "
+                        "SEBVS_RUN_TOKEN; the first listed host starts the clock; "
+                        "docs/scale.md, 'Several hosts')")
     r.set_defaults(func=_cmd_run)
 
     g = sub.add_parser("graph", help="show a topology's graph, pruned actors marked")

@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import time
 import types
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from .clock import now_ns
 from .shm import RingReader
 from .stats import summarize
 from .wire import Message, WireError, array_spec, decode_header
@@ -86,11 +86,11 @@ class LoopClock:
         self.woke_ns = 0       # select() returned: the loop runs this iteration's callbacks
 
     def select(self, timeout=None):
-        self.slept_ns = time.monotonic_ns()
+        self.slept_ns = now_ns()
         try:
             return self._selector.select(timeout)
         finally:
-            self.woke_ns = time.monotonic_ns()
+            self.woke_ns = now_ns()
 
     def __getattr__(self, name):       # register, modify, unregister, get_map, close...
         return getattr(self._selector, name)
@@ -162,9 +162,9 @@ class Inputs:
         # profiler's wake-up / queueing split), read once per callback
         clock = self.loop_clock
         slept, woke = clock.slept_ns, clock.woke_ns
-        budget_end = time.monotonic_ns() + DRAIN_BUDGET_NS
+        budget_end = now_ns() + DRAIN_BUDGET_NS
         for _ in range(DRAIN_BATCH):
-            taken = time.monotonic_ns()     # the budget check's clock read, kept as a stamp
+            taken = now_ns()     # the budget check's clock read, kept as a stamp
             if taken > budget_end:
                 break
             try:
@@ -176,7 +176,7 @@ class Inputs:
             st.received += 1
             if inp.latest:
                 while True:  # keep only the newest queued message
-                    t = time.monotonic_ns()
+                    t = now_ns()
                     try:
                         frames = _recv_message(sock)
                     except zmq.Again:
@@ -270,7 +270,7 @@ class Inputs:
         ``arrival`` = (slept_ns, woke_ns, taken_ns): the loop iteration's select() entry
         and return, and when this message was taken off the socket; telemetry only.
         """
-        msg.recv_ns = start = time.monotonic_ns()
+        msg.recv_ns = start = now_ns()
         coro = inp.handler(msg)
         try:
             yielded = coro.send(None)
@@ -295,7 +295,7 @@ class Inputs:
 
     def _handled(self, inp: _Input, msg: Message, start: int, exc: BaseException | None,
                  arrival: tuple) -> None:
-        end = time.monotonic_ns()
+        end = now_ns()
         st = inp.stats
         st.handled += 1
         if exc is not None:

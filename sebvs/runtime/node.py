@@ -13,7 +13,6 @@ import hmac
 import logging
 import os
 import signal
-import time
 from typing import Any
 
 import msgpack
@@ -21,6 +20,7 @@ import numpy as np
 import zmq
 import zmq.asyncio
 
+from .clock import now_ns
 from .inputs import TELEMETRY_MAX_RECORDS, InputStats, Inputs
 from .outputs import Outputs, count_subscriptions
 from .params import clip, params_to_dict
@@ -52,6 +52,7 @@ class Node:
         self.reserve = self.outputs.reserve
         self.emit = self.outputs.emit
         self.started = asyncio.Event()
+        self.ready = False      # told the supervisor so (a remote host's primary asks `ping`)
         self.finished_reason: str | None = None
         self.events: list = []
         self.telemetry_subscribers = 0
@@ -98,10 +99,13 @@ class Node:
             raise PermissionError("control requests carry the run's token (run.json 'token')")
         cmd = req["cmd"]
         if cmd == "ping":
-            return {"actor": self.name, "started": self.started.is_set()}
+            return {"actor": self.name, "started": self.started.is_set(), "ready": self.ready,
+                    "host": self.spec.get("host"), "topology": self.spec.get("topology_digest")}
+        if cmd == "clock":      # clocksync.py: the stamp clock, read as late as possible
+            return {"t_ns": now_ns()}
         if cmd == "start":
             self.started.set()
-            return {"started_ns": time.monotonic_ns()}
+            return {"started_ns": now_ns()}
         if cmd == "stop":
             self.finish("stop requested")
             return {"stopping": True}
@@ -121,7 +125,7 @@ class Node:
             result = await self.actor.control(req["key"], req["value"])
             self.event("set", {"key": req["key"][:100], "result": result})
             return result
-        raise ValueError(f"unknown command {cmd!r} (get, set, stats, stop, ping)")
+        raise ValueError(f"unknown command {cmd!r} (get, set, stats, stop, ping, clock)")
 
     async def _serve_control(self) -> None:
         while True:
@@ -142,7 +146,7 @@ class Node:
     # ------------------------------------------------------------------ telemetry
     def event(self, kind: str, fields: dict) -> None:
         if len(self.events) < TELEMETRY_MAX_RECORDS:
-            self.events.append([kind, time.monotonic_ns(), fields])
+            self.events.append([kind, now_ns(), fields])
 
     async def _publish_telemetry(self) -> None:
         while True:
@@ -154,7 +158,7 @@ class Node:
         events, self.events = self.events, []
         if self.telemetry_subscribers <= 0:
             return  # nobody listens: packing would be wasted work
-        payload = {"actor": self.name, "t_ns": time.monotonic_ns(), "records": records,
+        payload = {"actor": self.name, "t_ns": now_ns(), "records": records,
                    "events": events, "skipped": self.inputs.records_skipped,
                    "drops": self.inputs.drops()}
         try:
@@ -189,6 +193,7 @@ class Node:
             await push.send(msgpack.packb({"event": "ready", "actor": self.name,
                                            "pid": os.getpid()}))
             push.close()
+            self.ready = True
         else:
             self.started.set()
         start_wait = asyncio.create_task(self.started.wait())

@@ -1,5 +1,10 @@
 """The output side of a Node: an XPUB socket and a shared-memory ring per output, and the
-publishing of samples on them."""
+publishing of samples on them.
+
+An output consumed on its own host and on another (a multi-host topology) has two
+sockets, decided per edge by the supervisor: the host's consumers read the ring through
+``endpoint``, the other host's get the same sample with its arrays inline on ``remote``
+(tcp). Either consumer sees the same header but for where the arrays are."""
 from __future__ import annotations
 
 import asyncio
@@ -11,6 +16,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from .clock import now_ns
 from .shm import RingWriter, packed_offsets
 from .wire import dtype_to_wire, encode_header
 
@@ -25,7 +31,10 @@ class _Output:
     socket: Any
     ring: RingWriter | None
     subscribers_expected: int
+    remote: Any = None              # XPUB for the consumers on other hosts: arrays inline
+    remote_expected: int = 0
     subscribers: int = 0
+    remote_subscribers: int = 0
     seq: int = 0
     pending: tuple | None = None    # (slot, arrays dict, descriptors) of a reservation
 
@@ -38,47 +47,54 @@ class Outputs:
         self.ports: dict[str, _Output] = {}
 
     def bind(self, specs: dict, ctx: zmq.Context) -> None:
-        # XPUB rather than PUB: it tells us of each subscription, so we can wait for them
         for out, o in specs.items():
-            sock = ctx.socket(zmq.XPUB)
-            sock.setsockopt(zmq.XPUB_VERBOSE, 1)
-            sock.setsockopt(zmq.SNDHWM, o["hwm"])
-            sock.setsockopt(zmq.LINGER, 0)
-            sock.bind(o["endpoint"])
+            sock = _xpub(ctx, o["hwm"], o["endpoint"])
             if o.get("inproc"):   # consumers in this process (a process group) connect here
                 sock.bind(o["inproc"])
+            remote = _xpub(ctx, o["hwm"], o["remote"]) if o.get("remote") else None
             ring = RingWriter(o["ring"], o["slots"]) if o.get("ring") else None
             self.ports[out] = _Output(out, f"{self.name}/{out}".encode(), sock, ring,
-                                      o["subscribers"])
+                                      o["subscribers"], remote,
+                                      o.get("remote_subscribers", 0) if remote else 0)
 
     # ------------------------------------------------------------------ subscriptions
     async def await_subscribers(self, timeout_s: float) -> None:
         """Ready only once every consumer's subscription has reached our XPUB sockets."""
         deadline = time.monotonic() + timeout_s
         for out in self.ports.values():
-            while out.subscribers < out.subscribers_expected:
+            while (out.subscribers < out.subscribers_expected
+                   or out.remote_subscribers < out.remote_expected):
                 self.drain_subscriptions(out)
-                if out.subscribers >= out.subscribers_expected:
+                if (out.subscribers >= out.subscribers_expected
+                        and out.remote_subscribers >= out.remote_expected):
                     break
                 if time.monotonic() > deadline:
+                    far = (f", {out.remote_subscribers}/{out.remote_expected} on other hosts"
+                           if out.remote is not None or out.remote_expected else "")
                     raise TimeoutError(
                         f"output {out.name!r}: {out.subscribers}/{out.subscribers_expected} "
-                        f"consumers subscribed after {timeout_s:.0f} s")
+                        f"consumers subscribed{far} after {timeout_s:.0f} s")
                 await asyncio.sleep(0.005)
 
     def drain_subscriptions(self, out: _Output) -> None:
         out.subscribers = count_subscriptions(out.socket, out.subscribers)
+        if out.remote is not None:
+            out.remote_subscribers = count_subscriptions(out.remote, out.remote_subscribers)
 
     def watch_subscriptions(self) -> None:
         loop = asyncio.get_running_loop()
         for out in self.ports.values():
-            loop.add_reader(out.socket.FD, self.drain_subscriptions, out)
+            for sock in (out.socket, out.remote):
+                if sock is not None:
+                    loop.add_reader(sock.FD, self.drain_subscriptions, out)
             self.drain_subscriptions(out)
 
     def stop_watching(self) -> None:
         loop = asyncio.get_running_loop()
         for out in self.ports.values():
-            loop.remove_reader(out.socket.FD)
+            for sock in (out.socket, out.remote):
+                if sock is not None:
+                    loop.remove_reader(sock.FD)
 
     # ------------------------------------------------------------------ publishing
     def reserve(self, output: str, specs: dict[str, tuple]) -> dict[str, np.ndarray]:
@@ -108,7 +124,7 @@ class Outputs:
                              f"(declared: {', '.join(self.ports) or 'none'})") from None
 
     def emit(self, output, arrays, *, meta=None, t_sim=None, tick=None, parent=None) -> None:
-        send_ns = time.monotonic_ns()
+        send_ns = now_ns()
         out = self._output(output)
         arrays = arrays or {}
         descs, buffers = [], []
@@ -154,20 +170,22 @@ class Outputs:
             stamps = [[self.name, 0, send_ns]]
         header = encode_header(source=self.name, output=output, seq=out.seq, t_sim=t_sim,
                                tick=tick, stamps=stamps, arrays=descs, meta=meta)
+        _send(out.socket, out.topic, header, buffers)
+        if out.remote is not None and out.remote_subscribers:
+            descs, buffers = [], []
+            for name, a in arrays.items():
+                a = np.ascontiguousarray(a)
+                descs.append([name, dtype_to_wire(a.dtype), list(a.shape), None])
+                buffers.append(a.data.cast("B") if a.nbytes else b"")
+            header = encode_header(source=self.name, output=output, seq=out.seq, t_sim=t_sim,
+                                   tick=tick, stamps=stamps, arrays=descs, meta=meta)
+            _send(out.remote, out.topic, header, buffers)
         out.seq += 1
-        # Frame by frame rather than send_multipart, whose per-frame checks cost more than
-        # the sends themselves. PUB never blocks: at the high-water mark ZeroMQ drops the
-        # message and the receiver counts the gap.
-        sock = out.socket
-        sock.send(out.topic, _SEND_MORE)
-        sock.send(header, _SEND_MORE if buffers else zmq.NOBLOCK)
-        for i, buf in enumerate(buffers, 1):
-            # zero-copy only pays for large buffers: ZeroMQ must track their release
-            sock.send(buf, _SEND_MORE if i < len(buffers) else zmq.NOBLOCK,
-                      copy=len(buf) < SHM_MIN_BYTES)
 
     def stats(self) -> dict:
-        return {n: {"sent": o.seq, "subscribers": o.subscribers} for n, o in self.ports.items()}
+        return {n: {"sent": o.seq, "subscribers": o.subscribers,
+                    **({"remote_subscribers": o.remote_subscribers} if o.remote else {})}
+                for n, o in self.ports.items()}
 
     def close(self) -> None:
         """Unlink our rings and close the sockets."""
@@ -175,6 +193,30 @@ class Outputs:
             if out.ring is not None:
                 out.ring.close(unlink=True)
             out.socket.close(linger=0)
+            if out.remote is not None:
+                out.remote.close(linger=0)
+
+
+def _xpub(ctx: zmq.Context, hwm: int, endpoint: str):
+    # XPUB rather than PUB: it tells us of each subscription, so we can wait for them
+    sock = ctx.socket(zmq.XPUB)
+    sock.setsockopt(zmq.XPUB_VERBOSE, 1)
+    sock.setsockopt(zmq.SNDHWM, hwm)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.bind(endpoint)
+    return sock
+
+
+def _send(sock, topic: bytes, header: bytes, buffers: list) -> None:
+    """Frame by frame rather than send_multipart, whose per-frame checks cost more than
+    the sends themselves. PUB never blocks: at the high-water mark ZeroMQ drops the
+    message and the receiver counts the gap."""
+    sock.send(topic, _SEND_MORE)
+    sock.send(header, _SEND_MORE if buffers else zmq.NOBLOCK)
+    for i, buf in enumerate(buffers, 1):
+        # zero-copy only pays for large buffers: ZeroMQ must track their release
+        sock.send(buf, _SEND_MORE if i < len(buffers) else zmq.NOBLOCK,
+                  copy=len(buf) < SHM_MIN_BYTES)
 
 
 def count_subscriptions(sock, count: int) -> int:

@@ -14,6 +14,12 @@ message (``inputs.LoopClock``) and when it took the message off its socket. All 
 - chain split      = each chain's hops cut into queueing, wake-up, transport and handler
                      (exact definitions in ``chainsplit.py``; they add up to the chain)
 
+A multi-host run's hosts have clocks of their own. The primary's run.json carries each
+host's offset against the primary's clock and its uncertainty (``clocksync.py``, re-read
+every CLOCK_REREAD_S while attached); every stamp is moved onto the primary's clock as it
+is ingested, and an edge or chain whose two ends are on different hosts is reported with
+``clock_uncertainty_us``, the sum of the two hosts' uncertainties.
+
 Telemetry that does not parse (a batch, a record, a stamp of the wrong shape) is counted
 in ``skipped`` and left out; it never stops the profiler.
 """
@@ -37,6 +43,7 @@ RECORD_FIELDS = ("input", "topic", "seq", "tick", "t_sim", "stamps", "start_ns",
                  "slept_ns", "woke_ns", "taken_ns")
 KEEP_RECORDS = 200_000     # records kept for the split and the trace (oldest dropped first)
 KEEP_CHAINS = 100_000      # chain instances kept per chain for the split
+CLOCK_REREAD_S = 1.0       # run.json re-read for refreshed clock offsets (multi-host runs)
 
 
 class ProfileCollector:
@@ -67,6 +74,50 @@ class ProfileCollector:
         self.node_skipped: dict = {}            # per actor: records beyond its batch limit
         self.t_start = time.monotonic()
         self.t_first = None
+        # multi-host: actor -> its host, and per host (offset_ns, uncertainty_ns) on the
+        # primary's clock; hosts whose offset run.json does not give yet are listed apart
+        self.host_of = {n: a.get("host") for n, a in info["actors"].items()
+                        if isinstance(a, dict)}
+        self.host_clock: dict = {}
+        self.offset: dict = {}          # actor -> ns to subtract (only nonzero ones)
+        self.clock_unknown: set = set()
+        self._next_clock_read = time.monotonic() + CLOCK_REREAD_S
+        self.read_clocks(info)
+
+    def read_clocks(self, info: dict) -> None:
+        """Take the hosts' clock offsets of a run.json (ignored where malformed)."""
+        hosts = info.get("hosts")
+        if not isinstance(hosts, dict):
+            return
+        clocks, unknown = {}, set()
+        for host, entry in hosts.items():
+            c = entry.get("clock") if isinstance(entry, dict) else None
+            if isinstance(c, dict) and _is_int(c.get("offset_ns")) \
+                    and _is_int(c.get("uncertainty_ns")):
+                clocks[host] = (c["offset_ns"], c["uncertainty_ns"])
+            else:
+                unknown.add(host)
+        self.host_clock, self.clock_unknown = clocks, unknown
+        self.offset = {a: clocks[h][0] for a, h in self.host_of.items()
+                       if h in clocks and clocks[h][0]}
+
+    def _reread_clocks(self) -> None:
+        if not self.host_clock and not self.clock_unknown:
+            return      # a one-host run: nothing to refresh
+        self._next_clock_read = time.monotonic() + CLOCK_REREAD_S
+        try:
+            info = json.loads((Path(self.info["rundir"]) / "run.json").read_text())
+        except (OSError, ValueError, KeyError, TypeError):
+            return      # between rewrites, or gone with its run: keep what we have
+        if isinstance(info, dict):
+            self.read_clocks(info)
+
+    def clock_uncertainty_ns(self, a: str, b: str) -> int:
+        """How far a latency from actor a's stamp to actor b's may be off (0 on one host)."""
+        ha, hb = self.host_of.get(a), self.host_of.get(b)
+        if ha == hb:
+            return 0
+        return self.host_clock.get(ha, (0, 0))[1] + self.host_clock.get(hb, (0, 0))[1]
 
     def poll(self, timeout_s: float) -> int:
         """Receive what arrives within ``timeout_s``; returns the number of batches."""
@@ -76,6 +127,8 @@ class ProfileCollector:
             left = deadline - time.monotonic()
             if not self.socket.poll(max(0, int(left * 1000))):
                 return n
+            if time.monotonic() >= self._next_clock_read:
+                self._reread_clocks()
             frames = self.socket.recv_multipart()
             try:
                 batch = msgpack.unpackb(frames[-1], raw=False)
@@ -105,6 +158,8 @@ class ProfileCollector:
                 self.skipped["events"] += 1
                 continue
             kind, t_ns, fields = ev
+            if _is_int(t_ns):
+                t_ns -= self.offset.get(actor, 0)
             self.events[f"{actor}:{kind}"] += 1
             self.last_events = (self.last_events + [[actor, kind, t_ns, fields]])[-50:]
         drops = batch.get("drops")
@@ -130,6 +185,9 @@ class ProfileCollector:
             return False
         if tick is not None and not _is_int(tick):
             tick = None
+        if self.offset:     # onto the primary's clock (a one-host run skips this)
+            stamps, start, end, arrival = self._on_primary_clock(actor, stamps, start, end,
+                                                                 arrival)
         if stamps:
             self.edges[(topic, f"{actor}.{inp}")].append(start - stamps[-1][2])
             if actor in self.sinks or actor == stamps[0][0]:
@@ -143,6 +201,13 @@ class ProfileCollector:
             self.kept.popitem(last=False)
         self.kept[(actor, start)] = (actor, inp, tick, stamps, start, end, *arrival)
         return True
+
+    def _on_primary_clock(self, actor, stamps, start, end, arrival):
+        off = self.offset.get
+        own = off(actor, 0)
+        # a source's receive stamp is 0 (it received nothing) and stays 0
+        stamps = [[a, r - off(a, 0) if r else 0, t - off(a, 0)] for a, r, t in stamps]
+        return stamps, start - own, end - own, [t - own if t else 0 for t in arrival]
 
     # ------------------------------------------------------------------ chain split
     def split(self, since_ns: int | None = None) -> list[dict]:
@@ -217,16 +282,27 @@ class ProfileCollector:
         return {
             "run": self.info.get("name"), "run_id": self.info.get("run_id"),
             "seconds": round(time.monotonic() - self.t_start, 3),
-            "edges": [{"edge": f"{topic} -> {dst}", **summarize(v, 1e-3)}
+            "edges": [{"edge": f"{topic} -> {dst}", **summarize(v, 1e-3),
+                       **self._uncertainty(topic.split("/")[0], dst.split(".")[0])}
                       for (topic, dst), v in sorted(self.edges.items())],
             "handlers": [{"actor": a, "input": i, **summarize(v, 1e-3), "drops": drops((a, i))}
                          for (a, i), v in sorted(self.handlers.items())],
-            "chains": [{"chain": c, **summarize(v, 1e-3)} for c, v in sorted(self.chains.items())],
+            "chains": [{"chain": c, **summarize(v, 1e-3),
+                        **self._uncertainty(c.split(" > ")[0], c.split(" > ")[-1])}
+                       for c, v in sorted(self.chains.items())],
             "split": self.split(),
             "events": dict(self.events),
             "skipped": {"profiler": dict(self.skipped), "actors": dict(self.node_skipped)},
             "units": "microseconds",
         }
+
+    def _uncertainty(self, a: str, b: str) -> dict:
+        """{"clock_uncertainty_us": ...} for a latency between two hosts, else {}."""
+        if self.host_of.get(a) == self.host_of.get(b):
+            return {}
+        if {self.host_of.get(a), self.host_of.get(b)} & self.clock_unknown:
+            return {"clock_uncertainty_us": None}     # an offset not estimated yet
+        return {"clock_uncertainty_us": self.clock_uncertainty_ns(a, b) / 1e3}
 
     def close(self) -> None:
         self.socket.close()
@@ -265,6 +341,9 @@ def format_report(rep: dict) -> str:
             if r.get("drops"):
                 extra = "  " + ", ".join(f"{k.replace('dropped_', '')}={v}"
                                          for k, v in r["drops"].items() if v) or "  0"
+            if "clock_uncertainty_us" in r:   # across hosts: how far the clocks may be off
+                u = r["clock_uncertainty_us"]
+                extra += "  clocks +-" + ("unknown" if u is None else f"{_fmt(u)}")
             lines.append(f"{r[key]:<{width}}  {cells}{extra}")
 
     lines.append("")

@@ -6,6 +6,12 @@ handshake, clean stop.
                                             a group member's <actor>.log links to it)
     <tmp>/sebvs-<id>/                       ipc sockets, process specs; removed at the end
 
+A topology with [hosts.<name>] tables runs one supervisor per host (``host=``): each
+spawns its own host's actors; the first listed host's (the primary) also waits for the
+other hosts' actors to be ready, starts them all, estimates each host's clock offset
+(``clocksync.py``, refreshed during the run) and lists every actor in its run.json, so
+`sebvs profile` attached to it sees the whole topology on one clock.
+
 An actor that exits with code 0 has finished its job (a recorder that wrote its
 episodes, a source that ran out): the run then ends. An actor that dies otherwise is
 reported with its exit code and the end of its log, then restarted or the run stopped,
@@ -33,16 +39,21 @@ from typing import Callable
 import msgpack
 import zmq
 
+from .clocksync import measure_offset
 from .params import clip, short_repr
 from .shm import remove_run_rings
 from .stalls import STALL_PERIOD_S, StallWatch, query_all
-from .topology import Topology, TopologyError, load_topology
+from .topology import Topology, TopologyError, check_cpus_available, load_topology
 
 STOP_GRACE_S = 1.0      # after `stop`, before SIGTERM
 TERM_GRACE_S = 0.5      # after SIGTERM, before SIGKILL
 POLL_S = 0.05
 MAX_RING_SLOTS = 256
 LOG_TAIL_LINES = 20
+TOKEN_ENV = "SEBVS_RUN_TOKEN"   # shared by the supervisors of a multi-host run
+MIN_TOKEN_CHARS = 16
+CLOCK_REFRESH_S = 5.0           # the primary re-estimates the other hosts' clock offsets
+REMOTE_PING_S = 0.1             # a remote actor's answer to `ping`, while waiting for it
 
 
 class RunFailed(RuntimeError):
@@ -126,19 +137,26 @@ class _Proc:
 
 class Supervisor:
     def __init__(self, topo: Topology, runs_dir: str | Path | None = None,
-                 log_level: str = "INFO", echo: Callable[[str], None] | None = None):
+                 log_level: str = "INFO", echo: Callable[[str], None] | None = None,
+                 host: str | None = None):
+        """``host``: which of a multi-host topology's [hosts] this supervisor runs (required
+        there, refused elsewhere)."""
         self.topo = topo
+        self.host = _check_host(topo, host)
+        self.primary = self.host is None or self.host == topo.primary
         self.echo = echo or (lambda text: print(text, file=sys.stderr, flush=True))
         self.run_id = secrets.token_hex(4)
         # every control request carries it: over tcp anyone who can reach a port could
         # otherwise query, reconfigure or stop an actor
-        self.token = secrets.token_hex(16)
+        self.token = _run_token(topo, self.host, self.primary)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         self.rundir = run_directory(runs_root(runs_dir), topo.name, f"{stamp}-{self.run_id}")
         self.sockdir = socket_root() / f"sebvs-{self.run_id}"
         self.log_level = log_level
         self.ctx = zmq.Context()
         self.procs: dict[str, _Proc] = {}       # by process name
+        self.remote: dict[str, str] = {}        # other hosts' actors: control endpoints
+        self._next_clock_refresh = 0.0
         self.proc_of: dict[str, _Proc] = {}     # by actor name
         self.info: dict = {}
         self.status = "new"
@@ -151,32 +169,59 @@ class Supervisor:
             return f"tcp://{self.topo.host}:{_free_tcp_port(self.topo.host)}"
         return f"ipc://{self.sockdir}/{stem}"
 
+    def _is_local(self, actor: str) -> bool:
+        return self.host is None or self.topo.actors[actor].host == self.host
+
     def _plan(self) -> dict[str, dict]:
+        """The specs of this host's actors; ``self.endpoints`` has every active actor's
+        control and telemetry endpoints (the other hosts' from their [hosts] ports)."""
         topo = self.topo
         active = topo.active
-        self.groups = topo.processes()
-        process_of = {a: g for g, members in self.groups.items() for a in members}
+        self.groups = {g: m for g, m in topo.processes().items() if self._is_local(m[0])}
+        process_of = {a: g for g, members in topo.processes().items() for a in members}
+        host_of = {n: a.host for n, a in active.items()}
+        far_ports = _host_ports(topo)
         outputs = {}
         for a in active.values():
             for out in a.cls.outputs:
                 consumers = topo.consumers(a.name, out)
                 depth = max([i.queue for _, i in consumers if i.queue != "latest"] or [2])
                 same = [c for c, _ in consumers if process_of[c] == process_of[a.name]]
+                near = [c for c, _ in consumers if host_of[c] == host_of[a.name]]
+                far = far_ports.get((a.name, out))  # consumed on another host: tcp, inline
+                if not self._is_local(a.name):      # only its tcp endpoint matters here
+                    outputs[(a.name, out)] = {"far": far}
+                    continue
+                local = bool(near) or far is None
                 outputs[(a.name, out)] = {
-                    "endpoint": self._endpoint(f"{a.name}.{out}"),
+                    # the host's own consumers: ipc and the ring; or, with none, the tcp one
+                    "endpoint": self._endpoint(f"{a.name}.{out}") if local else far,
                     # consumers in the producer's own process connect here: ZeroMQ's
                     # inproc pipes, no I/O thread, no kernel socket (the shared context
                     # is the group's); the others connect to `endpoint`
                     "inproc": f"inproc://{a.name}.{out}" if same else None,
-                    "ring": None if topo.transport == "tcp"
+                    "ring": None if topo.transport == "tcp" or not local
                     else f"sebvs-{self.run_id}-{a.name}-{out}",
                     "slots": min(2 * depth + 4, MAX_RING_SLOTS),
                     "hwm": depth,
-                    "subscribers": len(consumers),
+                    "subscribers": len(near) if local else len(consumers),
+                    "remote": far if local and far is not None else None,
+                    "remote_subscribers": len(consumers) - len(near) if local else 0,
+                    "far": far,
                 }
         self.supervisor_endpoint = self._endpoint("supervisor")
+        self.endpoints = {
+            n: {"control": far_ports[(n, "ctl")] if (n, "ctl") in far_ports
+                else self._endpoint(f"{n}.ctl"),
+                "telemetry": far_ports[(n, "tel")] if (n, "tel") in far_ports
+                else self._endpoint(f"{n}.tel")}
+            for n in active if self.primary or self._is_local(n)}
         specs = {}
         for a in active.values():
+            if not self._is_local(a.name):
+                continue
+            if a.cpus and self.host is not None:    # the loader left this to each host
+                check_cpus_available(a.cpus, f"{topo.path}: [actors.{a.name}]")
             specs[a.name] = {
                 "name": a.name, "run": a.run, "params": a.params, "cpus": list(a.cpus),
                 "seed": topo.actor_seed(a.name), "clock": topo.clock, "run_id": self.run_id,
@@ -184,15 +229,18 @@ class Supervisor:
                 "process": process_of[a.name],
                 "inputs": {i.name: {"endpoint": _input_endpoint(
                                         outputs[(i.producer, i.output)],
-                                        process_of[i.producer] == process_of[a.name]),
+                                        process_of[i.producer] == process_of[a.name],
+                                        host_of[i.producer] == host_of[a.name]),
                                     "topic": f"{i.producer}/{i.output}", "queue": i.queue,
                                     "max_bytes": i.max_bytes,
                                     "hwm": 2 if i.queue == "latest" else i.queue}
                            for i in a.inputs.values()},
-                "outputs": {o: outputs[(a.name, o)] for o in a.cls.outputs},
-                "control": self._endpoint(f"{a.name}.ctl"),
+                "outputs": {o: {k: v for k, v in outputs[(a.name, o)].items() if k != "far"}
+                            for o in a.cls.outputs},
+                "control": self.endpoints[a.name]["control"],
                 "token": self.token,
-                "telemetry": self._endpoint(f"{a.name}.tel"),
+                "telemetry": self.endpoints[a.name]["telemetry"],
+                "host": a.host, "topology_digest": self.topo.digest,
                 "supervisor": self.supervisor_endpoint,
                 "supervisor_pid": os.getpid(),
                 "log_level": self.log_level,
@@ -239,6 +287,8 @@ class Supervisor:
             "placement": self.topo.placement,
             "processes": {g: {"actors": members} for g, members in self.groups.items()},
         }
+        if self.host is not None:
+            self._describe_hosts(specs)
         for name, members in self.groups.items():
             spec_path = self.sockdir / f"{name}.json"
             # an actor alone under its own name runs as before; anything else is a group
@@ -257,14 +307,78 @@ class Supervisor:
         for p in self.procs.values():
             self._spawn(p)
         self._write_info()
+        if self.primary and self.remote:
+            others = sorted({self.topo.actors[n].host for n in self.remote})
+            token = ("the same SEBVS_RUN_TOKEN" if os.environ.get(TOKEN_ENV) else
+                     f"SEBVS_RUN_TOKEN set to this run's ('token' in {self.rundir}/run.json)")
+            self.echo(f"sebvs: waiting for host(s) {', '.join(others)}: start `sebvs run "
+                      f"{self.topo.path} --host NAME` on each, with {token}")
         self._await_ready()
-        for name in self.specs:
-            self.request(name, {"cmd": "start"})
+        if self.primary:
+            self._refresh_offsets()
+            for name in self.specs:
+                self.request(name, {"cmd": "start"})
+            if self.remote:
+                query_all(self.ctx, self.remote, {"cmd": "start", "token": self.token}, 2.0)
+        else:
+            self.echo(f"sebvs: host {self.host!r} ready; the primary "
+                      f"({self.topo.primary!r}) starts the clock")
         self.status = "running"
         self.stalls = StallWatch({(a.name, i.name): (i.producer, i.output)
-                                  for a in self.topo.active.values()
-                                  for i in a.inputs.values()})
+                                  for a in self.topo.active.values() if a.name in self.specs
+                                  for i in a.inputs.values() if i.producer in self.specs})
         self._next_stall_check = time.monotonic() + STALL_PERIOD_S
+        self._write_info()
+
+    def _describe_hosts(self, specs: dict) -> None:
+        """run.json of a multi-host run: each actor's host; the primary's also lists the
+        other hosts' actors (their endpoints, for `ctl` and `profile`) and, per host, the
+        clock offset it estimates (``_refresh_offsets``)."""
+        self.remote = {n: e["control"] for n, e in self.endpoints.items() if n not in specs}
+        for name, entry in self.info["actors"].items():
+            entry["host"] = self.topo.actors[name].host
+        for name in self.remote:
+            a = self.topo.actors[name]
+            self.info["actors"][name] = {
+                "run": a.run, "host": a.host, **self.endpoints[name],
+                "consumed": [o for o in a.cls.outputs if self.topo.consumers(name, o)],
+                "inputs": {i: v.source for i, v in a.inputs.items()}}
+        self.info["host"] = self.host
+        self.info["primary"] = self.topo.primary
+        self.info["topology_digest"] = self.topo.digest
+        self.info["hosts"] = {
+            h.name: {"address": h.address, "port": h.port,
+                     # the primary's clock is the run's: offsets are the others' against it
+                     "clock": {"offset_ns": 0, "uncertainty_ns": 0} if h.name == self.host
+                     else None}
+            for h in self.topo.hosts.values()
+            if h.name == self.host or (self.primary and
+                                       any(self.topo.actors[n].host == h.name
+                                           for n in self.remote))}
+
+    def _refresh_offsets(self) -> None:
+        """Estimate every other host's clock offset (one actor of each answers; a host's
+        processes share its clock) and write them into run.json."""
+        if not self.primary or not self.remote:
+            return
+        if time.monotonic() < self._next_clock_refresh:
+            return
+        self._next_clock_refresh = time.monotonic() + CLOCK_REFRESH_S
+        for host, entry in self.info["hosts"].items():
+            if host == self.host:
+                continue
+            actors = [n for n in self.remote if self.topo.actors[n].host == host]
+            measured = None
+            for name in actors:     # the first that answers
+                measured = measure_offset(self.ctx, self.remote[name], self.token)
+                if measured is not None:
+                    break
+            if measured is None:
+                self.echo(f"sebvs: host {host!r}: no actor answered the clock exchange; "
+                          f"its offset stays {entry['clock']}")
+                continue
+            entry["clock"] = dict(measured.to_dict(), measured_at=datetime.now().isoformat(
+                timespec="seconds"))
         self._write_info()
 
     def _check_stalls(self) -> None:
@@ -299,7 +413,10 @@ class Supervisor:
 
     def _await_ready(self) -> None:
         deadline = time.monotonic() + self.topo.ready_timeout_s
-        while not all(p.ready for p in self.procs.values()):
+        waiting_remote = set(self.remote) if self.primary else set()
+        while waiting_remote or not all(p.ready for p in self.procs.values()):
+            if waiting_remote:
+                waiting_remote -= self._remote_ready(waiting_remote)
             if self._interrupted:
                 raise RunFailed(f"interrupted ({self._interrupted}) before all actors were ready")
             dead = self._reap()
@@ -310,9 +427,37 @@ class Supervisor:
                 raise RunFailed(self.failure)
             if time.monotonic() > deadline:
                 waiting = [p.name for p in self.procs.values() if not p.ready]
+                hosts = sorted({self.topo.actors[n].host for n in waiting_remote})
+                far = (f"; on other hosts: {', '.join(sorted(waiting_remote))} (is "
+                       f"`sebvs run {self.topo.path} --host NAME` running on "
+                       f"{', '.join(hosts)}, with the same token?)" if waiting_remote else "")
                 raise RunFailed(f"actors not ready after {self.topo.ready_timeout_s:.0f} s: "
-                                f"{', '.join(waiting)}")
+                                f"{', '.join(waiting) or 'none here'}{far}")
             self._poll_ready(POLL_S)
+
+    def _remote_ready(self, names: set) -> set:
+        """The actors among ``names`` (other hosts') that answer `ping` as ready; a host
+        running another topology, or refusing the token, ends the run with that said."""
+        replies = query_all(self.ctx, {n: self.remote[n] for n in names},
+                            {"cmd": "ping", "token": self.token}, REMOTE_PING_S)
+        ready = set()
+        for name, reply in replies.items():
+            host = self.topo.actors[name].host
+            if not isinstance(reply, dict):
+                continue
+            if not reply.get("ok"):
+                if "PermissionError" in str(reply.get("error")):
+                    raise RunFailed(f"host {host!r} refuses this run's token: start every "
+                                    f"host with the same {TOKEN_ENV}")
+                continue
+            result = reply.get("result") or {}
+            if result.get("topology") != self.topo.digest:
+                raise RunFailed(f"host {host!r} runs another topology (digest "
+                                f"{result.get('topology')!r}, here {self.topo.digest!r}): "
+                                f"start every host with the same file and --set options")
+            if result.get("ready"):
+                ready.add(name)
+        return ready
 
     def _poll_ready(self, timeout_s: float) -> list[str]:
         ready = []
@@ -406,6 +551,7 @@ class Supervisor:
                     else []:
                 self.request(name, {"cmd": "start"})  # a restarted actor joins the clock
             self._check_stalls()
+            self._refresh_offsets()
             if on_poll is not None:
                 on_poll(POLL_S)
             else:
@@ -420,6 +566,9 @@ class Supervisor:
         if self.status == "ended":
             return 1 if self.failure else 0
         self.status = "stopping"
+        if self.primary and self.remote:
+            # the other hosts' actors end, and their supervisors with them
+            query_all(self.ctx, self.remote, {"cmd": "stop", "token": self.token}, 1.0)
         live = [p for p in self.procs.values() if p.popen and p.popen.poll() is None]
         sockets = []
         for p in live:  # ask all at once, then wait for all
@@ -486,9 +635,67 @@ def control_request(ctx: zmq.Context, endpoint: str, request: dict,
         s.close()
 
 
-def _input_endpoint(output: dict, same_process: bool) -> str:
-    """Where a consumer connects: the producer's inproc endpoint from its own process."""
+def _input_endpoint(output: dict, same_process: bool, same_host: bool = True) -> str:
+    """Where a consumer connects: the producer's inproc endpoint from its own process, its
+    tcp one from another host."""
+    if not same_host:
+        return output["far"]
     return output["inproc"] if same_process and output["inproc"] else output["endpoint"]
+
+
+def _check_host(topo: Topology, host: str | None) -> str | None:
+    if not topo.hosts:
+        if host is not None:
+            raise TopologyError(f"{topo.path}: --host {short_repr(host)}: this topology has "
+                                f"no [hosts.<name>] tables; it runs on one machine")
+        return None
+    if host is None:
+        raise TopologyError(f"{topo.path}: places actors on hosts {', '.join(topo.hosts)}: "
+                            f"start one supervisor per host with --host NAME (the primary, "
+                            f"{topo.primary!r}, starts the clock)")
+    if host not in topo.hosts:
+        raise TopologyError(f"{topo.path}: --host {short_repr(host)}: no such host "
+                            f"(hosts: {', '.join(topo.hosts)})")
+    return host
+
+
+def _run_token(topo: Topology, host: str | None, primary: bool) -> str:
+    """A fresh token, or on a multi-host run the one all its supervisors share
+    (``SEBVS_RUN_TOKEN``; the primary makes one when it is not set)."""
+    shared = os.environ.get(TOKEN_ENV, "")
+    if host is None or (primary and not shared):
+        return secrets.token_hex(16)
+    if len(shared) < MIN_TOKEN_CHARS:
+        raise TopologyError(
+            f"{topo.path}: host {host!r} needs the run's token: set {TOKEN_ENV} (at least "
+            f"{MIN_TOKEN_CHARS} characters) to the same secret on every host, or to the "
+            f"primary's (its run.json 'token')")
+    return shared
+
+
+def _host_ports(topo: Topology) -> dict[tuple[str, str], str]:
+    """tcp endpoints of a multi-host topology, the same on every host: per host, in
+    topology order, each actor's control and telemetry, then each of its outputs that
+    another host consumes, on consecutive ports from the host's `port`.
+
+    Keys: (actor, "ctl"), (actor, "tel"), (actor, output)."""
+    endpoints = {}
+    active = topo.active
+    for host in topo.hosts.values():
+        port = host.port
+        for a in active.values():
+            if a.host != host.name:
+                continue
+            names = ["ctl", "tel"] + [o for o in a.cls.outputs
+                                      if any(active[c].host != host.name
+                                             for c, _ in topo.consumers(a.name, o))]
+            for name in names:
+                if port > 65535:
+                    raise TopologyError(f"{topo.path}: [hosts.{host.name}] port "
+                                        f"{host.port}: its actors need ports beyond 65535")
+                endpoints[(a.name, name)] = f"tcp://{host.address}:{port}"
+                port += 1
+    return endpoints
 
 
 def _indent(text: str) -> str:

@@ -6,7 +6,9 @@ sink and stays).
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
+import json
 import os
 import re
 import tomllib
@@ -31,7 +33,11 @@ TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
                  "placement": Literal["grouped", "isolated", "auto"]}
 # the name becomes a directory under the runs directory: no separators, no leading dot
 RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
-ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process"}
+ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process", "host"}
+# [hosts.<name>] keys: where that host's actors bind (its address as the other hosts reach
+# it) and the first of the consecutive tcp ports they use (docs/scale.md, "Several hosts")
+HOST_KEYS = {"address": str, "port": Annotated[int, Range(ge=1024, le=65535)]}
+DEFAULT_HOST_PORT = 47000
 DEFAULT_QUEUE = 32
 # `placement = "auto"` honours the actors' `process` groups on machines with at most this
 # many CPUs, and runs every actor alone on bigger ones (docs/runtime.md, "Process groups")
@@ -66,6 +72,17 @@ class ActorSpec:
     pruned: bool = False
     cpus: tuple[int, ...] = ()      # pin the process (all its threads) to these CPUs; () = OS's choice
     process: str | None = None      # the process group it shares with others; None = its own
+    host: str | None = None         # the [hosts] entry it runs on; None = a one-host topology
+
+
+@dataclass
+class HostSpec:
+    """One machine of a multi-host topology: its actors bind tcp ports port, port + 1, ...
+    on ``address`` for whatever another host reaches (control, telemetry, outputs
+    consumed there); what stays on the host uses ipc and shared memory."""
+    name: str
+    address: str = "127.0.0.1"
+    port: int = DEFAULT_HOST_PORT
 
 
 @dataclass
@@ -85,6 +102,15 @@ class Topology:
     placement: str = "grouped"
     description: str = ""
     actors: dict[str, ActorSpec] = field(default_factory=dict)
+    # several hosts: each runs `sebvs run FILE --host NAME`; the first listed is the primary
+    # (it starts the clock, estimates the others' clock offsets, and its run.json lists all)
+    hosts: dict[str, HostSpec] = field(default_factory=dict)
+    # the file and its --set overrides, hashed: every host's supervisor must run the same
+    digest: str = ""
+
+    @property
+    def primary(self) -> str | None:
+        return next(iter(self.hosts), None)
 
     @property
     def active(self) -> dict[str, ActorSpec]:
@@ -146,8 +172,8 @@ def _subtable(table: dict, key: str, text: str) -> dict:
 
 def _apply_override(doc: dict, text: str) -> None:
     parts, value = parse_override(text)
-    if parts[0] == "topology":
-        table = _subtable(doc, "topology", text)
+    if parts[0] in ("topology", "hosts"):
+        table = _subtable(doc, parts[0], text)
     else:
         actors = _subtable(doc, "actors", text)
         if parts[0] not in actors:
@@ -213,14 +239,23 @@ def _parse_input(spec: Any, where: str,
                         f"got {short_repr(spec)}")
 
 
-def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
+def _parse_cpus(value: Any, where: str, here: bool = True) -> tuple[int, ...]:
     """The `cpus` key: distinct CPU numbers this process may run on (checked here, before any
-    process starts, so a topology written for a bigger machine fails with its name)."""
+    process starts, so a topology written for a bigger machine fails with its name).
+
+    ``here`` False (a multi-host topology, whose actors may run elsewhere): only the form
+    is checked; each host's supervisor checks its own actors (``check_cpus_available``)."""
     if not (isinstance(value, list) and value
             and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value)
             and len(set(value)) == len(value)):
         raise TopologyError(f"{where} key 'cpus': expected a non-empty list of distinct CPU "
                             f"numbers such as [0] or [2, 3], got {short_repr(value)}")
+    if here:
+        check_cpus_available(tuple(value), where)
+    return tuple(value)
+
+
+def check_cpus_available(value: tuple[int, ...], where: str) -> None:
     if not hasattr(os, "sched_setaffinity"):
         raise TopologyError(f"{where} key 'cpus': CPU pinning is not supported on this platform")
     available = os.sched_getaffinity(0)
@@ -228,7 +263,6 @@ def _parse_cpus(value: Any, where: str) -> tuple[int, ...]:
     if missing:
         raise TopologyError(f"{where} key 'cpus': CPU {', '.join(map(str, missing))} not "
                             f"available here (available: {', '.join(map(str, sorted(available)))})")
-    return tuple(value)
 
 
 def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topology:
@@ -256,10 +290,10 @@ def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topolo
 
 
 def build_topology(doc: dict, path: Path) -> Topology:
-    unknown = set(doc) - {"topology", "actors"}
+    unknown = set(doc) - {"topology", "actors", "hosts"}
     if unknown:
         raise TopologyError(f"{path}: unknown table [{sorted(unknown)[0]}] "
-                            f"(expected [topology] and [actors.<name>])")
+                            f"(expected [topology], [actors.<name>] and [hosts.<name>])")
     top = doc.get("topology")
     if not isinstance(top, dict):
         raise TopologyError(f"{path}: missing [topology] table")
@@ -280,6 +314,9 @@ def build_topology(doc: dict, path: Path) -> Topology:
                             f"not a run name (up to 100 ASCII letters, digits, '_', '-' and '.', "
                             f"not starting with '.')")
     topo = Topology(path=path, **checked)
+    topo.digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str)
+                                 .encode()).hexdigest()[:16]
+    topo.hosts = _parse_hosts(doc.get("hosts", {}), path)
     actors = doc.get("actors", {})
     if not isinstance(actors, dict) or not actors:
         raise TopologyError(f"{path}: no [actors.<name>] tables")
@@ -316,10 +353,11 @@ def build_topology(doc: dict, path: Path) -> Topology:
         keep = table.get("keep", False)
         if not isinstance(keep, bool):
             raise TopologyError(f"{where} key 'keep': expected true or false")
-        cpus = _parse_cpus(table["cpus"], where) if "cpus" in table else ()
+        cpus = _parse_cpus(table["cpus"], where, here=not topo.hosts) if "cpus" in table else ()
         process = _parse_process(table["process"], where) if "process" in table else None
+        host = _actor_host(table.get("host"), topo, where)
         topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep, cpus=cpus,
-                                      process=process)
+                                      process=process, host=host)
     for a in topo.actors.values():
         for inp in a.inputs.values():
             where = f"{path}: [actors.{a.name}] key 'inputs.{inp.name}'"
@@ -334,6 +372,44 @@ def build_topology(doc: dict, path: Path) -> Topology:
     _prune(topo)
     _check_groups(topo)
     return topo
+
+
+def _parse_hosts(table: Any, path: Path) -> dict[str, HostSpec]:
+    """[hosts.<name>] tables, in file order (the first is the primary)."""
+    if not isinstance(table, dict):
+        raise TopologyError(f"{path}: [hosts] expected tables [hosts.<name>]")
+    hosts = {}
+    for name, spec in table.items():
+        where = f"{path}: [hosts.{clip(name)}]"
+        if not (name.replace("_", "").replace("-", "").isalnum() and len(name) <= 64):
+            raise TopologyError(f"{where}: host names use up to 64 letters, digits, '_' "
+                                f"and '-'")
+        if not isinstance(spec, dict):
+            raise TopologyError(f"{where}: expected a table with 'address' and 'port'")
+        checked = {}
+        for key, value in spec.items():
+            if key not in HOST_KEYS:
+                raise TopologyError(f"{where}: unknown key {short_repr(key)} "
+                                    f"(known: {', '.join(HOST_KEYS)})")
+            try:
+                checked[key] = coerce_param(HOST_KEYS[key], value, where=f"{where} key {key!r}")
+            except ValueError as exc:
+                raise TopologyError(str(exc)) from None
+        hosts[name] = HostSpec(name, **checked)
+    return hosts
+
+
+def _actor_host(value: Any, topo: Topology, where: str) -> str | None:
+    """The `host` key: one of [hosts]; an actor without it runs on the primary."""
+    if value is None:
+        return topo.primary
+    if not topo.hosts:
+        raise TopologyError(f"{where} key 'host': this topology has no [hosts.<name>] "
+                            f"tables to place actors on")
+    if value not in topo.hosts:
+        raise TopologyError(f"{where} key 'host': no host {short_repr(value)} "
+                            f"(hosts: {', '.join(topo.hosts)})")
+    return value
 
 
 def _parse_process(value: Any, where: str) -> str:
@@ -358,6 +434,10 @@ def _check_groups(topo: Topology) -> None:
     for group, actors in members.items():
         where = f"{topo.path}: [actors.{actors[0].name}] key 'process'"
         names = {a.name for a in actors}
+        hosts = sorted({a.host for a in actors if a.host is not None})
+        if len(hosts) > 1:
+            raise TopologyError(f"{where}: the members of group {group!r} are placed on "
+                                f"hosts {', '.join(hosts)}; a process runs on one host")
         if group in topo.actors and group not in names:
             raise TopologyError(f"{where}: group {group!r} has the name of actor {group!r}, "
                                 f"which is not in it; name the group apart")
