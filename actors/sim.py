@@ -21,6 +21,9 @@ Clock (DESIGN.md section 3):
             max_speed_factor x real time (set it when consumers cannot keep up: a PUB
             socket drops at its high-water mark, it does not block).
   realtime  wall-clock pace x realtime_factor; the latest valid action applies on arrival.
+            The action for control tick k is due before tick k+1 goes out: the sim counts
+            the ticks that missed it and times every action (sebvs/runtime/deadlines.py):
+            stats "deadlines", telemetry "deadline_miss" and, per episode, "deadlines".
 
 A command with NaN/inf (or the wrong shape) is rejected: error in the log, telemetry
 "command_rejected", the last good command stays. Divergence (sebvs.sim.stability) ends the
@@ -37,6 +40,7 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
+from sebvs.runtime.deadlines import DeadlineMonitor
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
 from sebvs.sim.randomise import SceneRandomiser
 from sebvs.sim.stability import StabilityMonitor
@@ -118,6 +122,8 @@ class Sim(Actor):
         self.config: dict = {}
         self._build(base)
         self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
+        self.deadlines = DeadlineMonitor(round(1e9 / (p.control_hz * p.realtime_factor))) \
+            if self.clock == "realtime" and "action" in self.connected else None
         self.command = self.scene.idle_command()            # last good command
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: newest valid action
         self.action_tick = -1
@@ -145,6 +151,8 @@ class Sim(Actor):
     async def on_action(self, msg: Message) -> None:
         cmd = msg.arrays.get(self.scene.command_name)
         tick = msg.tick if msg.tick is not None else self.tick
+        if self.deadlines is not None:
+            self.deadlines.action(tick, time.monotonic_ns())
         if self.lockstep_wait and tick < self.tick:
             self.counts["stale_actions"] += 1       # answer to a tick already stepped past
             return
@@ -248,6 +256,8 @@ class Sim(Actor):
                     meta["scene"], meta["config"] = p.scene, self.config
                 await self.emit("state", scene.state(data), meta=meta,
                                 t_sim=self.t_offset + data.time, tick=self.tick)
+                if control and self.deadlines is not None and step < n_steps:
+                    self._tick_published()
                 if control and step < n_steps:
                     await self._await_action(self.tick)
                 if pace > 0:
@@ -277,6 +287,15 @@ class Sim(Actor):
                     break
         self.counts["steps"] += step
         self.counts["episodes"] += 1
+        if self.deadlines is not None:
+            self.deadlines.close_episode()
+            summary = self.deadlines.summary()
+            self.telemetry("deadlines", episode=k, **summary)
+            self.log.info("episode %d: %d of %d control ticks missed their deadline (%.0f ms)"
+                          "%s", k, summary["misses"], summary["ticks"], summary["period_ms"],
+                          f"; action latency p50 {summary['latency_p50_ms']:.1f} ms, p99 "
+                          f"{summary['latency_p99_ms']:.1f} ms"
+                          if "latency_p50_ms" in summary else "")
         t_ep = float(data.time) if math.isfinite(data.time) else step * self.dt
         outcome = {}
         if reason != "stopped" and not reason.startswith("diverged"):
@@ -291,5 +310,17 @@ class Sim(Actor):
                       f"; {outcome['outcome']}" if "outcome" in outcome else "")
         self.t_offset += t_ep
 
+    def _tick_published(self) -> None:
+        missed = self.deadlines.published(self.tick, time.monotonic_ns())
+        if missed:
+            n = self.deadlines.misses
+            if n <= 10 or n % 100 == 0:   # the count is in stats; the log stays readable
+                self.log.warning("control tick %d: the action for the previous tick missed "
+                                 "its deadline (%d missed so far)", self.tick, n)
+            self.telemetry("deadline_miss", tick=self.tick - 1, misses=n)
+
     def stats(self) -> dict:
-        return {**self.counts, "tick": self.tick, "command": self.command.tolist()}
+        out = {**self.counts, "tick": self.tick, "command": self.command.tolist()}
+        if self.deadlines is not None:
+            out["deadlines"] = self.deadlines.summary()
+        return out

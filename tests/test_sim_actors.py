@@ -243,7 +243,10 @@ def test_lockstep_closed_loop_is_bit_reproducible_and_rejects_nan(tmp_path):
 
 
 def test_realtime_keeps_wall_clock_pace(tmp_path):
-    e, _, _ = closed_loop(tmp_path, "realtime", "rt")
+    e, _, rundir = closed_loop(tmp_path, "realtime", "rt")
     states = [x for x in e if x["input"] == "state" and x["meta"]["episode"] == 0]
     wall = (states[-1]["recv_ns"] - states[0]["recv_ns"]) / 1e9
     assert 0.8 < wall < 1.6, wall                           # 1 s episode at factor 1
+    # the clock counts its control deadlines per episode (20 ticks of 50 ms each)
+    log = (rundir / "logs" / "sim.log").read_text()
+    assert "episode 0:" in log and "control ticks missed their deadline (50 ms)" in log

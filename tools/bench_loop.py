@@ -15,7 +15,13 @@ loop      topologies/nav_policy.toml (sim, camera, emulator, accumulator, the sh
           camera compiles its model and renderer on the first state, and the samples
           behind it queue); `all` keeps it. Deadline: one control period
           (1 / sim.control_hz); an action later than that, or a control tick that got
-          none, is a miss (counted over the whole run, warm-up apart as well).
+          none, is a miss (counted over the whole run, warm-up apart as well); the sim's
+          own count (sebvs/runtime/deadlines.py, its "deadlines" event) is kept beside it.
+          Two variants, side by side in every repeat: `default` (every actor at the
+          default priority) and `realtime` (the chain's actors at priority "realtime",
+          SCHED_FIFO; the tracker at nice 10: REALTIME_OVERRIDES). `--load N` runs N
+          CPU-bound processes at the default priority during the loop parts, so the tail
+          is measured on a machine that is loaded on purpose, not by chance.
 pipeline  nav expert + emulator + accumulator, lockstep, dvs 200 Hz: real-time factor
           (tools/bench_sim.py's bench_pipeline).
 record    `sebvs record topologies/nav_record.toml` at dvs 200 Hz: real-time factor of the
@@ -25,7 +31,7 @@ Each part runs --repeats times, one after the other; the headline figures are me
 over the repeats, each repeat's figure is kept beside them. The machine's load average
 is recorded before and after: on a shared machine read the ratios, not the absolutes.
 
-    tools/bench_loop.py [--quick] [--repeats N] [--json OUT]
+    tools/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only] [--json OUT]
 """
 from __future__ import annotations
 
@@ -33,6 +39,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -48,11 +55,16 @@ from tools.benchio import print_report  # noqa: E402
 
 NAV_POLICY = ROOT / "topologies" / "nav_policy.toml"
 LOOP_CHAIN = "sim > camera > emulator > accumulator > policy > sim"
+CHAIN_ACTORS = ("sim", "camera", "emulator", "accumulator", "policy")
+# docs/runtime.md, "Realtime tail": the sensor-to-action chain ahead of everything else
+REALTIME_OVERRIDES = [f'{a}.priority="realtime"' for a in CHAIN_ACTORS] + ["tracker.priority=10"]
+VARIANTS = {"default": [], "realtime": REALTIME_OVERRIDES}
+BURN = "while True: pass"
 TARGETS = {"chain_p50_ms": 5.0, "chain_p99_ms": 15.0, "chain_over_compute": 1.7,
            "pipeline_x_real_time": 15.0, "record_x_real_time": 10.0}
 
 
-def bench_closed_loop(seconds: float, warmup_s: float) -> dict:
+def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) -> dict:
     """nav_policy on the realtime clock for one episode of ``seconds``, profiled.
 
     The headline figures leave out the chains whose state was sent in the first
@@ -60,7 +72,7 @@ def bench_closed_loop(seconds: float, warmup_s: float) -> dict:
     on the first samples); ``all`` keeps them.
     """
     overrides = ['topology.clock="realtime"', f"sim.episode_s={seconds}", "sim.episodes=1",
-                 "sim.linger_s=0.5"]
+                 "sim.linger_s=0.5", *extra]
     topo = load_topology(NAV_POLICY, overrides)
     control_hz = float(topo.actors["sim"].params.get("control_hz", 10.0))
     with tempfile.TemporaryDirectory(prefix="bench-loop-") as tmp:
@@ -118,6 +130,8 @@ def bench_closed_loop(seconds: float, warmup_s: float) -> dict:
                        for c, v in split["components"].items()},
         "deadline": {"period_ms": round(deadline_ns / 1e6, 3), "ticks": len(ticks_sent),
                      "late": sum(late), "without_action": lost, "misses": sum(late) + lost},
+        "sim_deadlines": next((e[3] for e in reversed(collector.last_events)
+                               if e[0] == "sim" and e[1] == "deadlines"), None),
         "other_chains": {c["chain"]: {"count": c["count"], "p50_ms": _ms(c["p50"]),
                                       "p99_ms": _ms(c["p99"])}
                          for c in rep["chains"] if c["chain"] != LOOP_CHAIN},
@@ -138,59 +152,103 @@ def _median(rows: list[dict], key: str):
     return round(statistics.median(vals), 3) if vals else None
 
 
+def summarize_loops(loops: list[dict]) -> dict:
+    """One variant's repeats: medians of the headline figures, each repeat kept."""
+    best = sorted(loops, key=lambda x: x["chain_p50_ms"])[len(loops) // 2]
+    sim = [x["sim_deadlines"] for x in loops if x.get("sim_deadlines")]
+    return {
+        "chain": LOOP_CHAIN, "clock": "realtime",
+        **{k: _median(loops, k) for k in ("chain_p50_ms", "chain_p99_ms",
+                                          "compute_p50_ms", "chain_over_compute")},
+        "p99_over_p50": _round(_median(loops, "chain_p99_ms") / _median(loops, "chain_p50_ms"),
+                               2) if _median(loops, "chain_p50_ms") else None,
+        "warmup_s": 1.0,
+        "deadline_misses": [x["deadline"]["misses"] for x in loops],
+        "deadline_misses_in_warmup": [x["all"]["late_in_warmup"] for x in loops],
+        "sim_deadline_misses": [d.get("misses") for d in sim],
+        "sim_action_latency_p99_ms": [_round(d.get("latency_p99_ms"), 2) for d in sim],
+        "per_hop_of_median_repeat": best["per_hop"],
+        "components_of_median_repeat": best["components"],
+        "repeats": loops}
+
+
+class Burners:
+    """N CPU-bound processes at the default priority: a machine loaded on purpose."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.procs = n, []
+
+    def __enter__(self):
+        self.procs = [subprocess.Popen([sys.executable, "-c", BURN]) for _ in range(self.n)]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for proc in self.procs:
+            proc.kill()
+            proc.wait()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true",
                     help="10 s loop, 5 s pipeline, one 5 s recorded episode, 1 repeat")
     ap.add_argument("--repeats", type=int, default=None, help="default 3, 1 with --quick")
+    ap.add_argument("--load", type=int, default=0, metavar="N",
+                    help="N busy processes beside the loop parts (default 0)")
+    ap.add_argument("--loop-only", action="store_true",
+                    help="only the closed loop (both variants), no pipeline or record")
     ap.add_argument("--json", metavar="OUT", help="write the results here")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
     loop_s, pipe_s, rec_eps, rec_s = (10.0, 5.0, 1, 5.0) if args.quick else (30.0, 20.0, 2, 20.0)
     out: dict = {"config": {"quick": args.quick, "repeats": repeats, "loop_s": loop_s,
                             "pipeline_s": pipe_s, "record_episodes": rec_eps,
-                            "record_episode_s": rec_s, "dvs_hz": 200.0,
+                            "record_episode_s": rec_s, "dvs_hz": 200.0, "load": args.load,
+                            "variants": {k: v for k, v in VARIANTS.items()},
                             "cpus": os.cpu_count(), "statistic": "median over repeats"},
                  "load_avg_before": list(os.getloadavg())}
-    loops, pipes, recs, notes = [], [], [], []
+    loops = {v: [] for v in VARIANTS}
+    pipes, recs, notes = [], [], []
+    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v]), loops[v])
+             for v in VARIANTS]
+    if not args.loop_only:
+        parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
+                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0), recs)]
     for r in range(repeats):
-        for name, fn, rows in (("loop", lambda: bench_closed_loop(loop_s, 1.0), loops),
-                               ("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
-                               ("record", lambda: bench_record(rec_eps, rec_s, 200.0), recs)):
+        # the variants alternate their order, so a slow phase of the machine hits both
+        order = parts[:len(VARIANTS)][::-1 if r % 2 else 1] + parts[len(VARIANTS):]
+        for name, fn, rows in order:
             try:
-                rows.append(fn())
+                if name.startswith("loop"):
+                    with Burners(args.load):
+                        rows.append(fn())
+                else:
+                    rows.append(fn())
             except Exception as exc:    # one part failing still leaves the others' figures
                 notes.append(f"repeat {r} {name}: {type(exc).__name__}: {exc}")
             print(f"repeat {r} {name}: " + json.dumps(rows[-1] if rows else None)[:300],
                   file=sys.stderr, flush=True)
     out["load_avg_after"] = list(os.getloadavg())
-    if loops:
-        best = sorted(loops, key=lambda x: x["chain_p50_ms"])[len(loops) // 2]
-        out["loop"] = {
-            "chain": LOOP_CHAIN, "clock": "realtime",
-            **{k: _median(loops, k) for k in ("chain_p50_ms", "chain_p99_ms",
-                                              "compute_p50_ms", "chain_over_compute")},
-            "warmup_s": 1.0,
-            "deadline_misses": [x["deadline"]["misses"] for x in loops],
-            "deadline_misses_in_warmup": [x["all"]["late_in_warmup"] for x in loops],
-            "per_hop_of_median_repeat": best["per_hop"],
-            "components_of_median_repeat": best["components"],
-            "repeats": loops}
+    for variant, rows in loops.items():
+        if rows:
+            out[f"loop_{variant}"] = summarize_loops(rows)
     if pipes:
         out["pipeline"] = {"x_real_time": _median(pipes, "real_time_factor"),
                            "repeats": pipes}
     if recs:
         out["record"] = {"x_real_time": _median(recs, "real_time_factor"), "repeats": recs}
-    got = {"chain_p50_ms": out.get("loop", {}).get("chain_p50_ms"),
-           "chain_p99_ms": out.get("loop", {}).get("chain_p99_ms"),
-           "chain_over_compute": out.get("loop", {}).get("chain_over_compute"),
+    tuned = out.get("loop_realtime", {})
+    got = {"chain_p50_ms": tuned.get("chain_p50_ms"),
+           "chain_p99_ms": tuned.get("chain_p99_ms"),
+           "chain_over_compute": tuned.get("chain_over_compute"),
            "pipeline_x_real_time": out.get("pipeline", {}).get("x_real_time"),
            "record_x_real_time": out.get("record", {}).get("x_real_time")}
     out["targets"] = {k: {"target": t, "got": got[k],
                           "met": None if got[k] is None else
                           (got[k] >= t if k.endswith("real_time") else got[k] <= t)}
                       for k, t in TARGETS.items()}
+    out["targets_measured_on"] = "loop_realtime (chain figures), load " + str(args.load)
     if notes:
         out["notes"] = notes
     print_report(out, args.json)

@@ -224,6 +224,7 @@ class Supervisor:
                 check_cpus_available(a.cpus, f"{topo.path}: [actors.{a.name}]")
             specs[a.name] = {
                 "name": a.name, "run": a.run, "params": a.params, "cpus": list(a.cpus),
+                "priority": a.priority,
                 "seed": topo.actor_seed(a.name), "clock": topo.clock, "run_id": self.run_id,
                 "consumed": [o for o in a.cls.outputs if topo.consumers(a.name, o)],
                 "process": process_of[a.name],
@@ -279,7 +280,8 @@ class Supervisor:
             "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
             "actors": {n: {"run": s["run"], "control": s["control"],
                            "telemetry": s["telemetry"], "consumed": s["consumed"],
-                           "cpus": s["cpus"], "process": s["process"],
+                           "cpus": s["cpus"], "priority": s["priority"],
+                           "process": s["process"],
                            "outputs": {o: v["endpoint"] for o, v in s["outputs"].items()},
                            "inputs": {i: v["topic"] for i, v in s["inputs"].items()},
                            "log": str(self.rundir / "logs" / f"{s['process']}.log")}
@@ -295,6 +297,7 @@ class Supervisor:
             grouped = members != [name]
             spec = {"process": name, "members": [specs[m] for m in members],
                     "cpus": specs[members[0]]["cpus"], "supervisor_pid": os.getpid(),
+                    "priority": specs[members[0]]["priority"],
                     "log_level": self.log_level} if grouped else specs[name]
             spec_path.write_text(json.dumps(spec))
             self.procs[name] = p = _Proc(name, spec_path, self.rundir / "logs" / f"{name}.log",

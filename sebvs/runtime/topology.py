@@ -33,7 +33,11 @@ TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
                  "placement": Literal["grouped", "isolated", "auto"]}
 # the name becomes a directory under the runs directory: no separators, no leading dot
 RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
-ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process", "host"}
+ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process", "host", "priority"}
+# `priority`: a nice value (-20 highest .. 19 lowest; below 0 needs CAP_SYS_NICE), or
+# "realtime": SCHED_FIFO at REALTIME_PRIORITY (needs CAP_SYS_NICE or an rtprio limit)
+NICE_RANGE = (-20, 19)
+REALTIME_PRIORITY = 10
 # [hosts.<name>] keys: where that host's actors bind (its address as the other hosts reach
 # it) and the first of the consecutive tcp ports they use (docs/scale.md, "Several hosts")
 HOST_KEYS = {"address": str, "port": Annotated[int, Range(ge=1024, le=65535)]}
@@ -73,6 +77,7 @@ class ActorSpec:
     cpus: tuple[int, ...] = ()      # pin the process (all its threads) to these CPUs; () = OS's choice
     process: str | None = None      # the process group it shares with others; None = its own
     host: str | None = None         # the [hosts] entry it runs on; None = a one-host topology
+    priority: int | str | None = None   # nice value or "realtime"; None = inherited
 
 
 @dataclass
@@ -356,8 +361,9 @@ def build_topology(doc: dict, path: Path) -> Topology:
         cpus = _parse_cpus(table["cpus"], where, here=not topo.hosts) if "cpus" in table else ()
         process = _parse_process(table["process"], where) if "process" in table else None
         host = _actor_host(table.get("host"), topo, where)
+        priority = _parse_priority(table["priority"], where) if "priority" in table else None
         topo.actors[name] = ActorSpec(name, table["run"], cls, inputs, params, keep, cpus=cpus,
-                                      process=process, host=host)
+                                      process=process, host=host, priority=priority)
     for a in topo.actors.values():
         for inp in a.inputs.values():
             where = f"{path}: [actors.{a.name}] key 'inputs.{inp.name}'"
@@ -412,6 +418,18 @@ def _actor_host(value: Any, topo: Topology, where: str) -> str | None:
     return value
 
 
+def _parse_priority(value: Any, where: str) -> int | str:
+    """The `priority` key: a nice value, or "realtime" (runtime/worker.py applies it)."""
+    if value == "realtime":
+        return value
+    lo, hi = NICE_RANGE
+    if isinstance(value, int) and not isinstance(value, bool) and lo <= value <= hi:
+        return value
+    raise TopologyError(f"{where} key 'priority': expected a nice value from {lo} (highest) "
+                        f"to {hi} (lowest) or \"realtime\" (SCHED_FIFO), got "
+                        f"{short_repr(value)}")
+
+
 def _parse_process(value: Any, where: str) -> str:
     """The `process` key: the name of the process group the actor shares (it names the
     group's log file and socket paths, so it follows the actor-name rules)."""
@@ -441,6 +459,11 @@ def _check_groups(topo: Topology) -> None:
         if group in topo.actors and group not in names:
             raise TopologyError(f"{where}: group {group!r} has the name of actor {group!r}, "
                                 f"which is not in it; name the group apart")
+        priorities = {a.priority for a in actors}
+        if len(priorities) > 1:
+            shown = ", ".join(f"{a.name}: {a.priority}" for a in actors)
+            raise TopologyError(f"{where}: the members of group {group!r} ask for different "
+                                f"priorities ({shown}); a priority is the whole process's")
         pins = {a.cpus for a in actors}
         if len(pins) > 1:
             shown = ", ".join(f"{a.name}: {list(a.cpus) or 'unpinned'}" for a in actors)

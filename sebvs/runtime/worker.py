@@ -16,6 +16,7 @@ import signal
 import sys
 
 from .params import build_params
+from .topology import REALTIME_PRIORITY
 
 PR_SET_PDEATHSIG = 1
 
@@ -30,6 +31,13 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
+def _threads() -> list[int]:
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except FileNotFoundError:
+        return [0]
+
+
 def pin_process(cpus: list[int]) -> None:
     """Pin every thread of this process to ``cpus``.
 
@@ -37,15 +45,31 @@ def pin_process(cpus: list[int]) -> None:
     later (ZeroMQ's I/O thread when the Node makes its context, torch's pool) inherit the
     main thread's affinity, which is why this runs before the Node exists.
     """
-    try:
-        threads = [int(t) for t in os.listdir("/proc/self/task")]
-    except FileNotFoundError:
-        threads = [0]
-    for tid in threads:
+    for tid in _threads():
         try:
             os.sched_setaffinity(tid, cpus)
         except ProcessLookupError:
             pass  # a thread that ended meanwhile
+
+
+def set_priority(priority: int | str) -> str | None:
+    """Give every thread of this process ``priority`` (a nice value, or "realtime":
+    SCHED_FIFO at topology.REALTIME_PRIORITY); threads started later inherit it, as with
+    pin_process. Returns why it was not granted (the actor then runs at the default, with
+    a warning in its log), or None."""
+    for tid in _threads():
+        try:
+            if priority == "realtime":
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+            else:
+                os.setpriority(os.PRIO_PROCESS, tid, int(priority))
+        except ProcessLookupError:
+            pass
+        except (PermissionError, OSError, AttributeError) as exc:
+            need = "CAP_SYS_NICE or `ulimit -r`" if priority == "realtime" else \
+                "CAP_SYS_NICE or `ulimit -e`"
+            return f"priority {priority!r} not granted ({exc}); needs {need}"
+    return None
 
 
 def load_class(path: str):
@@ -78,6 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     from .node import Node  # after logging is configured
     if spec.get("cpus"):
         pin_process(spec["cpus"])
+    if spec.get("priority") is not None:
+        refused = set_priority(spec["priority"])
+        if refused:     # a topology written for another machine still runs here
+            logging.getLogger("sebvs.worker").warning("%s: %s", label, refused)
     if "members" in spec:
         from .group import run_group
         return run_group(spec, argv[0], actor_factory)
