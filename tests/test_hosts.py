@@ -3,7 +3,6 @@ profiler's offset-corrected hop latency. Two "hosts" are two supervisors on 127.
 one of them runs with an injected clock skew (SEBVS_CLOCK_SKEW_NS)."""
 import json
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sebvs.runtime.clocksync import estimate_offset
-from sebvs.runtime.supervisor import Supervisor, _host_ports
+from sebvs.runtime.supervisor import Supervisor, _host_ports, free_port_block
 from sebvs.runtime.topology import TopologyError, load_topology
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -147,29 +146,6 @@ def test_ports_beyond_the_last_are_refused(tmp_path):
 
 
 # ----------------------------------------------------------------------- two supervisors
-def free_port_block(n: int) -> int:
-    """The first of ``n`` consecutive free tcp ports on 127.0.0.1."""
-    for _ in range(50):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            base = s.getsockname()[1]
-        if base + n > 65535:
-            continue
-        socks = []
-        try:
-            for p in range(base, base + n):
-                s = socket.socket()
-                socks.append(s)
-                s.bind(("127.0.0.1", p))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no block of free ports")
-
-
 def sebvs(args, env_extra, **kw):
     env = dict(os.environ, SEBVS_RUN_TOKEN=TOKEN, **env_extra)
     return subprocess.Popen([sys.executable, "-m", "sebvs.cli", *args], cwd=ROOT, env=env,

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -33,6 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from sebvs.runtime.supervisor import free_port_block  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
 SKEW_NS = 50_000_000
@@ -40,27 +40,6 @@ TARGET_MS = 0.5
 HOPS = ("source/frames -> relay.frames", "relay/frames -> sink.frames")
 FRAMES = ["--set", "source.width=160", "--set", "source.height=160",
           "--set", "source.rate_hz=100"]
-
-
-def free_ports(n: int) -> int:
-    """The first of n consecutive free tcp ports on 127.0.0.1."""
-    for _ in range(100):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            base = s.getsockname()[1]
-        socks = []
-        try:
-            for port in range(base, base + n):
-                sock = socket.socket()
-                socks.append(sock)
-                sock.bind(("127.0.0.1", port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for sock in socks:
-                sock.close()
-    raise RuntimeError("no block of free tcp ports on 127.0.0.1")
 
 
 def sebvs(args: list[str], env: dict) -> subprocess.Popen:
@@ -83,7 +62,7 @@ def run_placement(kind: str, seconds: float, tmp: Path) -> dict:
             raise RuntimeError(f"{kind}: exit {proc.returncode}\n{out[-2000:]}")
         clock = None
     else:
-        ports = ["--set", f"hosts.a.port={free_ports(8)}", "--set", f"hosts.b.port={free_ports(8)}"]
+        ports = ["--set", f"hosts.a.port={free_port_block(8)}", "--set", f"hosts.b.port={free_port_block(8)}"]
         skew = {"SEBVS_CLOCK_SKEW_NS": str(SKEW_NS)} if kind == "skewed" else {}
         b = sebvs(["run", "topologies/synthetic_hosts.toml", "--host", "b", *ports, *FRAMES,
                    *runs], dict(token, **skew))

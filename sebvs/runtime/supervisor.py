@@ -88,6 +88,27 @@ def _free_tcp_port(host: str) -> int:
         return s.getsockname()[1]
 
 
+def free_port_block(n: int, host: str = "127.0.0.1", tries: int = 100) -> int:
+    """The first of ``n`` consecutive tcp ports free on ``host`` just now: a `[hosts]`
+    table's `port` for tests and benchmarks that run several hosts on one machine."""
+    for _ in range(tries):
+        base = _free_tcp_port(host)
+        if base + n > 65536:
+            continue
+        socks = []
+        try:
+            for port in range(base, base + n):
+                socks.append(socket.socket())
+                socks[-1].bind((host, port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for sock in socks:
+                sock.close()
+    raise RuntimeError(f"no {n} consecutive free tcp ports on {host} in {tries} tries")
+
+
 def log_tail(path: Path, n: int = LOG_TAIL_LINES) -> str:
     try:
         lines = path.read_text(errors="replace").splitlines()

@@ -302,16 +302,7 @@ def build_topology(doc: dict, path: Path) -> Topology:
     top = doc.get("topology")
     if not isinstance(top, dict):
         raise TopologyError(f"{path}: missing [topology] table")
-    checked = {}
-    for key, value in top.items():
-        if key not in TOPOLOGY_KEYS:
-            raise TopologyError(f"{path}: [topology] unknown key {short_repr(key)} "
-                                f"(known: {', '.join(TOPOLOGY_KEYS)})")
-        try:
-            checked[key] = coerce_param(TOPOLOGY_KEYS[key], value,
-                                        where=f"{path}: [topology] key {key!r}")
-        except ValueError as exc:
-            raise TopologyError(str(exc)) from None
+    checked = _checked_keys(top, TOPOLOGY_KEYS, f"{path}: [topology]")
     if "name" not in checked:
         raise TopologyError(f"{path}: [topology] key 'name' is required")
     if not RUN_NAME.fullmatch(checked["name"]):
@@ -380,6 +371,20 @@ def build_topology(doc: dict, path: Path) -> Topology:
     return topo
 
 
+def _checked_keys(table: dict, known: dict, where: str) -> dict:
+    """A table's keys, each known and coerced to its type, or the error naming it."""
+    checked = {}
+    for key, value in table.items():
+        if key not in known:
+            raise TopologyError(f"{where} unknown key {short_repr(key)} "
+                                f"(known: {', '.join(known)})")
+        try:
+            checked[key] = coerce_param(known[key], value, where=f"{where} key {key!r}")
+        except ValueError as exc:
+            raise TopologyError(str(exc)) from None
+    return checked
+
+
 def _parse_hosts(table: Any, path: Path) -> dict[str, HostSpec]:
     """[hosts.<name>] tables, in file order (the first is the primary)."""
     if not isinstance(table, dict):
@@ -392,16 +397,7 @@ def _parse_hosts(table: Any, path: Path) -> dict[str, HostSpec]:
                                 f"and '-'")
         if not isinstance(spec, dict):
             raise TopologyError(f"{where}: expected a table with 'address' and 'port'")
-        checked = {}
-        for key, value in spec.items():
-            if key not in HOST_KEYS:
-                raise TopologyError(f"{where}: unknown key {short_repr(key)} "
-                                    f"(known: {', '.join(HOST_KEYS)})")
-            try:
-                checked[key] = coerce_param(HOST_KEYS[key], value, where=f"{where} key {key!r}")
-            except ValueError as exc:
-                raise TopologyError(str(exc)) from None
-        hosts[name] = HostSpec(name, **checked)
+        hosts[name] = HostSpec(name, **_checked_keys(spec, HOST_KEYS, where))
     return hosts
 
 
