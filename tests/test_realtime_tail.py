@@ -87,3 +87,23 @@ print(set_priority(-5))
     lines = out.stdout.splitlines()
     assert lines[0] == "[7]"                    # the main thread and the other one
     assert "priority -5 not granted" in lines[1] and "CAP_SYS_NICE" in lines[1]
+
+
+def test_an_actor_runs_at_its_topology_priority(tmp_path):
+    import os
+    from sebvs.runtime.supervisor import Supervisor
+    ours = os.getpriority(os.PRIO_PROCESS, 0)
+    if ours > 6:
+        pytest.skip(f"this process runs at nice {ours}: lowering a child's to 6 needs privileges")
+    topo = load_topology(ROOT / "topologies" / "synthetic.toml",
+                         ["source.width=64", "source.height=48", "sink.priority=6"])
+    sup = Supervisor(topo, runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    try:
+        def nice(actor):   # field 19 of /proc/<pid>/stat, after the parenthesised name
+            stat = Path(f"/proc/{sup.procs[actor].popen.pid}/stat").read_text()
+            return int(stat.rsplit(")", 1)[1].split()[16])
+        assert nice("sink") == 6
+        assert nice("source") == ours              # inherited, as without the key
+    finally:
+        sup.stop()
