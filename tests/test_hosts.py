@@ -224,3 +224,57 @@ def test_cpus_are_checked_by_the_host_that_runs_the_actor(tmp_path, monkeypatch)
     # ...and b's own supervisor refuses it, naming the actor
     with pytest.raises(TopologyError, match=r"\[actors.sink\] key 'cpus': CPU 4095 not"):
         Supervisor(topo, runs_dir=tmp_path, host="b")._plan()
+
+
+# ----------------------------------------------------------------------- profiler
+def two_host_info(tmp_path, clock_b):
+    return {"name": "h", "run_id": "x", "rundir": str(tmp_path), "started_at": "",
+            "actors": {"source": {"host": "a", "control": "tcp://127.0.0.1:1",
+                                  "telemetry": "tcp://127.0.0.1:2", "consumed": ["frames"]},
+                       "relay": {"host": "b", "control": "tcp://127.0.0.1:3",
+                                 "telemetry": "tcp://127.0.0.1:4", "consumed": ["frames"]},
+                       "sink": {"host": "a", "control": "tcp://127.0.0.1:5",
+                                "telemetry": "tcp://127.0.0.1:6", "consumed": []}},
+            "hosts": {"a": {"clock": {"offset_ns": 0, "uncertainty_ns": 0}},
+                      "b": {"clock": clock_b}}}
+
+
+def test_profiler_moves_other_hosts_stamps_onto_the_primary_clock(tmp_path):
+    from sebvs.runtime.profiler import ProfileCollector
+    info = two_host_info(tmp_path, {"offset_ns": SKEW_NS, "uncertainty_ns": 40_000})
+    col = ProfileCollector(info)
+    try:
+        # true times: source sends at 1 ms, relay receives at 1.3 ms (its clock: +50 ms),
+        # relay sends at 1.5 ms, sink receives at 1.9 ms and ends at 2.0 ms
+        relay_rec = ["frames", "source/frames", 0, 0, 0.0, [["source", 0, 1_000_000]],
+                     1_300_000 + SKEW_NS, 1_500_000 + SKEW_NS, 0, 0, 0]
+        sink_rec = ["frames", "relay/frames", 0, 0, 0.0,
+                    [["source", 0, 1_000_000], ["relay", 1_300_000 + SKEW_NS,
+                                                1_500_000 + SKEW_NS]],
+                    1_900_000, 2_000_000, 0, 0, 0]
+        col.ingest({"actor": "relay", "records": [relay_rec]})
+        col.ingest({"actor": "sink", "records": [sink_rec]})
+        rep = col.report()
+    finally:
+        col.close()
+    edges = {e["edge"]: e for e in rep["edges"]}
+    assert edges["source/frames -> relay.frames"]["p50"] == pytest.approx(300.0)
+    assert edges["relay/frames -> sink.frames"]["p50"] == pytest.approx(400.0)
+    assert edges["relay/frames -> sink.frames"]["clock_uncertainty_us"] == pytest.approx(40.0)
+    chain = rep["chains"][0]
+    assert chain["p50"] == pytest.approx(1000.0) and "clock_uncertainty_us" not in chain
+    assert not rep["skipped"]["profiler"]
+
+
+def test_profiler_says_when_a_hosts_offset_is_not_known_yet(tmp_path):
+    from sebvs.runtime.profiler import ProfileCollector, format_report
+    col = ProfileCollector(two_host_info(tmp_path, None))
+    try:
+        col.ingest({"actor": "relay", "records": [
+            ["frames", "source/frames", 0, 0, 0.0, [["source", 0, 1_000]], 2_000, 3_000,
+             0, 0, 0]]})
+        rep = col.report()
+    finally:
+        col.close()
+    assert rep["edges"][0]["clock_uncertainty_us"] is None
+    assert "clocks +-unknown" in format_report(rep)
