@@ -146,9 +146,7 @@ class Outputs:
                 elif out.ring is not None and a.nbytes >= SHM_MIN_BYTES:
                     to_ring.append((name, a))
                 else:
-                    a = np.ascontiguousarray(a)
-                    descs.append([name, dtype_to_wire(a.dtype), list(a.shape), None])
-                    buffers.append(a.data.cast("B") if a.nbytes else b"")  # len() = bytes
+                    _inline(name, a, descs, buffers)
             if to_ring:
                 offsets, total = packed_offsets([a.nbytes for _, a in to_ring])
                 slot, view = out.ring.reserve(total)
@@ -174,9 +172,7 @@ class Outputs:
         if out.remote is not None and out.remote_subscribers:
             descs, buffers = [], []
             for name, a in arrays.items():
-                a = np.ascontiguousarray(a)
-                descs.append([name, dtype_to_wire(a.dtype), list(a.shape), None])
-                buffers.append(a.data.cast("B") if a.nbytes else b"")
+                _inline(name, a, descs, buffers)
             header = encode_header(source=self.name, output=output, seq=out.seq, t_sim=t_sim,
                                    tick=tick, stamps=stamps, arrays=descs, meta=meta)
             _send(out.remote, out.topic, header, buffers)
@@ -195,6 +191,13 @@ class Outputs:
             out.socket.close(linger=0)
             if out.remote is not None:
                 out.remote.close(linger=0)
+
+
+def _inline(name: str, a, descs: list, buffers: list) -> None:
+    """Describe ``a`` as an inline array and queue its bytes as a frame of their own."""
+    a = np.ascontiguousarray(a)
+    descs.append([name, dtype_to_wire(a.dtype), list(a.shape), None])
+    buffers.append(a.data.cast("B") if a.nbytes else b"")  # len() = bytes
 
 
 def _xpub(ctx: zmq.Context, hwm: int, endpoint: str):

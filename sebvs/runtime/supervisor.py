@@ -176,7 +176,8 @@ class Supervisor:
         self.log_level = log_level
         self.ctx = zmq.Context()
         self.procs: dict[str, _Proc] = {}       # by process name
-        self.remote: dict[str, str] = {}        # other hosts' actors: control endpoints
+        # other hosts' actors (the primary's alone lists them): their control endpoints
+        self.remote: dict[str, str] = {}
         self._next_clock_refresh = 0.0
         self.proc_of: dict[str, _Proc] = {}     # by actor name
         self.info: dict = {}
@@ -198,8 +199,9 @@ class Supervisor:
         control and telemetry endpoints (the other hosts' from their [hosts] ports)."""
         topo = self.topo
         active = topo.active
-        self.groups = {g: m for g, m in topo.processes().items() if self._is_local(m[0])}
-        process_of = {a: g for g, members in topo.processes().items() for a in members}
+        processes = topo.processes()
+        self.groups = {g: m for g, m in processes.items() if self._is_local(m[0])}
+        process_of = {a: g for g, members in processes.items() for a in members}
         host_of = {n: a.host for n, a in active.items()}
         far_ports = _host_ports(topo)
         outputs = {}
@@ -232,10 +234,8 @@ class Supervisor:
                 }
         self.supervisor_endpoint = self._endpoint("supervisor")
         self.endpoints = {
-            n: {"control": far_ports[(n, "ctl")] if (n, "ctl") in far_ports
-                else self._endpoint(f"{n}.ctl"),
-                "telemetry": far_ports[(n, "tel")] if (n, "tel") in far_ports
-                else self._endpoint(f"{n}.tel")}
+            n: {"control": far_ports.get((n, "ctl")) or self._endpoint(f"{n}.ctl"),
+                "telemetry": far_ports.get((n, "tel")) or self._endpoint(f"{n}.tel")}
             for n in active if self.primary or self._is_local(n)}
         specs = {}
         for a in active.values():
@@ -331,7 +331,7 @@ class Supervisor:
         for p in self.procs.values():
             self._spawn(p)
         self._write_info()
-        if self.primary and self.remote:
+        if self.remote:
             others = sorted({self.topo.actors[n].host for n in self.remote})
             token = ("the same SEBVS_RUN_TOKEN" if os.environ.get(TOKEN_ENV) else
                      f"SEBVS_RUN_TOKEN set to this run's ('token' in {self.rundir}/run.json)")
@@ -383,7 +383,7 @@ class Supervisor:
     def _refresh_offsets(self) -> None:
         """Estimate every other host's clock offset (one actor of each answers; a host's
         processes share its clock) and write them into run.json."""
-        if not self.primary or not self.remote:
+        if not self.remote:
             return
         if time.monotonic() < self._next_clock_refresh:
             return
@@ -437,7 +437,7 @@ class Supervisor:
 
     def _await_ready(self) -> None:
         deadline = time.monotonic() + self.topo.ready_timeout_s
-        waiting_remote = set(self.remote) if self.primary else set()
+        waiting_remote = set(self.remote)
         while waiting_remote or not all(p.ready for p in self.procs.values()):
             if waiting_remote:
                 waiting_remote -= self._remote_ready(waiting_remote)
@@ -590,7 +590,7 @@ class Supervisor:
         if self.status == "ended":
             return 1 if self.failure else 0
         self.status = "stopping"
-        if self.primary and self.remote:
+        if self.remote:
             # the other hosts' actors end, and their supervisors with them
             query_all(self.ctx, self.remote, {"cmd": "stop", "token": self.token}, 1.0)
         live = [p for p in self.procs.values() if p.popen and p.popen.poll() is None]
