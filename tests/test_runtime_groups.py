@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sebvs.runtime.supervisor import Supervisor, run_topology
-from sebvs.runtime.topology import TopologyError, load_topology
+from sebvs.runtime.topology import CPUS_ENV, TopologyError, load_topology, run_cpus
 
 ROOT = Path(__file__).resolve().parents[1]
 SYNTHETIC = ROOT / "topologies" / "synthetic.toml"
@@ -72,8 +72,33 @@ def test_placement_isolated_and_auto():
     topo = load_topology(SYNTHETIC, VISION + ["topology.placement=auto"])
     assert topo.processes(cpus_available=2) == grouped   # a small machine: grouped
     assert topo.processes(cpus_available=16) == alone    # a big one: isolated
+    one = {"all": ["source", "relay", "sink"]}
+    assert topo.processes(cpus_available=1) == one       # one CPU to itself: one process
+    assert topo.resolved_placement(cpus_available=1) == "single"
+    topo = load_topology(SYNTHETIC, VISION + ["topology.placement=single"])
+    assert topo.processes(cpus_available=64) == one
     with pytest.raises(TopologyError, match="placement"):
         load_topology(SYNTHETIC, ['topology.placement="packed"'])
+
+
+def test_auto_reads_the_cpu_share_a_pool_gives_its_run(monkeypatch):
+    """$SEBVS_CPUS (set by `--workers N` for each worker) is what "auto" counts on."""
+    topo = load_topology(SYNTHETIC, VISION + ["topology.placement=auto"])
+    monkeypatch.setenv(CPUS_ENV, "1")
+    assert run_cpus() == 1 and list(topo.processes()) == ["all"]
+    monkeypatch.setenv(CPUS_ENV, "3")
+    assert run_cpus() == 3 and topo.resolved_placement() == "grouped"
+    monkeypatch.setenv(CPUS_ENV, "many")       # not a count: the CPUs this process may use
+    assert run_cpus() == len(os.sched_getaffinity(0))
+
+
+def test_single_placement_needs_actors_that_can_share_a_process():
+    cpu = max(os.sched_getaffinity(0))
+    with pytest.raises(TopologyError, match="'placement'.*pin different CPUs"):
+        load_topology(SYNTHETIC, ["topology.placement=single", f"source.cpus=[{cpu}]"])
+    # "auto" on one CPU falls back to the `process` keys rather than refuse
+    topo = load_topology(SYNTHETIC, VISION + ["topology.placement=auto", f"sink.cpus=[{cpu}]"])
+    assert topo.resolved_placement(cpus_available=1) == "grouped"
 
 
 # ---------------------------------------------------------------------- running
@@ -241,30 +266,32 @@ def _episode_contents(path):
     return data, attrs
 
 
-def test_lockstep_recording_is_the_same_isolated_and_grouped(tmp_path):
-    """One short episode of topologies/nav_record.toml in one process per actor and in two
-    process groups (not the file's own split, so the test holds whatever the file says):
-    every recorded array and attribute is the same."""
+def test_lockstep_recording_is_the_same_in_any_placement(tmp_path):
+    """One short episode of topologies/nav_record.toml in one process per actor, in two
+    process groups (not the file's own split, so the test holds whatever the file says)
+    and in one process: every recorded array and attribute is the same."""
     import numpy as np
     groups = [f'{a}.process="{g}"' for g, actors in
               (("front", ("sim", "camera", "expert")),
                ("back", ("emulator", "accumulator", "recorder"))) for a in actors]
     contents = {}
-    for placement in ("isolated", "grouped"):
+    for placement in ("isolated", "grouped", "single"):
         out = tmp_path / placement
         rundir = run_topology(ROOT / "topologies" / "nav_record.toml",
                               [*groups, f"topology.placement={placement}", "sim.episode_s=0.6",
                                "recorder.episodes=1", f"recorder.out={json.dumps(str(out))}"],
                               duration_s=60, runs_dir=tmp_path / "runs")
         procs = json.loads((rundir / "run.json").read_text())["processes"]
-        assert len(procs) == (6 if placement == "isolated" else 2)
+        assert len(procs) == {"isolated": 6, "grouped": 2, "single": 1}[placement]
         contents[placement] = _episode_contents(out / "episode_0000.h5")
-    (a, a_attrs), (b, b_attrs) = contents["isolated"], contents["grouped"]
-    assert set(a) == set(b) and {"rgb", "events/frame", "action", "tick"} <= set(a)
-    assert len(a["tick"]) >= 5
-    for name in a:
-        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-    assert a_attrs.keys() == b_attrs.keys()
-    for key in a_attrs:
-        assert np.array_equal(a_attrs[key], b_attrs[key]) if isinstance(a_attrs[key], list) \
-            else a_attrs[key] == b_attrs[key], key
+    a, a_attrs = contents["isolated"]
+    assert {"rgb", "events/frame", "action", "tick"} <= set(a) and len(a["tick"]) >= 5
+    for placement in ("grouped", "single"):
+        b, b_attrs = contents[placement]
+        assert set(a) == set(b), placement
+        for name in a:
+            np.testing.assert_array_equal(a[name], b[name], err_msg=f"{placement}: {name}")
+        assert a_attrs.keys() == b_attrs.keys()
+        for key in a_attrs:
+            assert np.array_equal(a_attrs[key], b_attrs[key]) \
+                if isinstance(a_attrs[key], list) else a_attrs[key] == b_attrs[key], key

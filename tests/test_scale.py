@@ -5,6 +5,7 @@ import importlib.util
 import json
 import shutil
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -219,3 +220,32 @@ def test_a_lost_worker_is_retried(tmp_path):
         for shm in Path("/dev/shm").glob(f"sebvs-{run_id}-*"):
             shm.unlink(missing_ok=True)
         shutil.rmtree(Path(tempfile.gettempdir()) / f"sebvs-{run_id}", ignore_errors=True)
+
+
+@dataclass(frozen=True)
+class _Probe:
+    label: str
+    parent_pid: int | None = None
+
+
+def _report_cpu_share(task: _Probe) -> dict:
+    """A pool worker that reports the CPU share it was given."""
+    import os
+    from sebvs.runtime.topology import CPUS_ENV
+    return {"label": task.label, "code": 0, "failure": None, "cpus": os.environ.get(CPUS_ENV)}
+
+
+@pytest.mark.parametrize("workers, share", [(2, "2"), (4, "1"), (8, "1")])
+def test_each_local_worker_is_told_its_share_of_the_cpus(monkeypatch, workers, share):
+    """N workers on a machine of C CPUs each count on C // N of them (at least one), so a
+    worker's `placement = "auto"` runs its topology in one process when that is one CPU."""
+    monkeypatch.setenv("SEBVS_CPUS", "4")          # the driver's machine: four CPUs
+    shares = []
+
+    def collect(shard, result):
+        shares.append(result["cpus"])
+        return []
+
+    fan_out([Shard("job", k, k + 1) for k in range(workers)], lambda s: _Probe(str(s)),
+            collect, workers=workers, worker=_report_cpu_share, echo=lambda text: None)
+    assert shares == [share] * workers

@@ -9,7 +9,8 @@ record   `sebvs record topologies/nav_record.toml`, E short episodes (lockstep)
 Each runs at workers 1, 2, 4, ... up to os.cpu_count() (the local pool, `--workers N`);
 each figure is the median wall time of `--repeats` runs, alternating the worker counts
 within a repeat so a slow phase of a shared machine hits all of them. Reported per job:
-episodes per second, speed-up against workers 1. Ray: the eval again with
+episodes per second, speed-up against workers 1, and the cores the run kept busy (CPU
+seconds of the command and everything it started, per wall second). Ray: the eval again with
 `--ray --workers 2` (a local Ray started by the command); its overhead per episode is
 (Ray wall - pool wall at 2 workers) / episodes, as a fraction of an episode's wall time at
 one worker, with and without Ray's start-up (timed alone: ray.init + shutdown). The load
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -50,15 +52,22 @@ def worker_counts() -> list[int]:
     return sorted(set(counts))
 
 
-def timed(cmd: list[str], cwd: Path) -> float:
-    """Wall seconds of one command; its output kept only when it fails."""
-    t0 = time.monotonic()
+def children_cpu_s() -> float:
+    """CPU seconds (user + system) of every process this one started and waited for, and
+    of theirs (each of our commands waits for its workers and actors)."""
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
+
+
+def timed(cmd: list[str], cwd: Path) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of one command; its output kept only when it fails."""
+    cpu0, t0 = children_cpu_s(), time.monotonic()
     proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    wall = time.monotonic() - t0
+    wall, cpu = time.monotonic() - t0, children_cpu_s() - cpu0
     if proc.returncode != 0:
         tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-15:])
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{tail}")
-    return wall
+    return wall, cpu
 
 
 def eval_cmd(out: Path, episodes: int, episode_s: float, fanout: list[str]) -> list[str]:
@@ -93,21 +102,31 @@ def bench_job(name: str, make_cmd, episodes_total: int, episodes: int, episode_s
     if ray:
         variants.append(("ray workers 2", ["--ray", "--workers", "2"]))
     walls: dict[str, list[float]] = {label: [] for label, _ in variants}
+    cpus: dict[str, list[float]] = {label: [] for label, _ in variants}
     row: dict = {"job": name, "episodes": episodes_total, "episode_s": episode_s,
                  "load_before": load()}
     for r in range(repeats):
         for label, fanout in variants:      # alternating within a repeat
             out = tmp / f"{name}-{label.replace(' ', '')}-{r}"
-            wall = timed(make_cmd(out, episodes, episode_s, fanout), ROOT)
+            wall, cpu = timed(make_cmd(out, episodes, episode_s, fanout), ROOT)
             walls[label].append(round(wall, 2))
-            print(f"{name} [{label}] {wall:.1f} s, "
-                  f"{episodes_total / wall:.3f} episodes/s (load {load()[0]})", flush=True)
+            cpus[label].append(round(cpu, 2))
+            busy = "" if label.startswith("ray") else f", {cpu / wall:.2f} cores busy"
+            print(f"{name} [{label}] {wall:.1f} s, {episodes_total / wall:.3f} "
+                  f"episodes/s{busy} (load {load()[0]})", flush=True)
     row["load_after"] = load()
     w1 = statistics.median(walls["workers 1"])
     row["runs"] = {}
     for label, _ in variants:
         med = statistics.median(walls[label])
         row["runs"][label] = {"wall_s": walls[label], "median_wall_s": round(med, 2),
+                              # CPU seconds per wall second: how many cores the run kept
+                              # busy. Not for Ray: its tasks run in Ray's worker processes,
+                              # which are not this command's children
+                              "cpu_s": None if label.startswith("ray") else cpus[label],
+                              "cores_busy": None if label.startswith("ray") else round(
+                                  statistics.median(c / w for c, w in
+                                                    zip(cpus[label], walls[label])), 2),
                               "episodes_per_s": round(episodes_total / med, 4),
                               "speedup": round(w1 / med, 3)}
     if ray:

@@ -346,7 +346,7 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
     """Every run's episodes as shards on workers (sebvs/scale), merged in episode order.
 
     A run is split into ceil(workers / runs) contiguous episode ranges (several runs fill
-    the workers first, each started once); a shard plays episodes [a, b) of its run
+    the workers first, each started once), queued longest first; a shard plays episodes [a, b) of its run
     (sim.first_episode = a: the seeds and episode numbers of one process) and its tracker
     writes <out>/episodes/.shards/<run>.<token>.<a>-<b>.try<n>.jsonl. The driver keeps
     the lines of the shard's episodes and, once a run has all N, writes the run's episode
@@ -371,6 +371,13 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
             for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
                 old.unlink()
         shards += [Shard(run, a, b) for a, b in split_episodes(0, plan.episodes, parts)]
+    # longest first: a worker that starts a long shard last keeps the others idle at the
+    # end. A shard's work is taken as episodes x the actors its topology runs (an event
+    # chain adds two), a learned policy counted twice (torch: its import and a network per
+    # tick); sorted stably, so equal shards keep the order of the runs
+    weight = {run: len(load_topology(*plan.overrides(run)).active)
+              + (run.modality in MODALITIES) for run in runs}
+    shards.sort(key=lambda s: -(s.stop - s.first) * weight[s.job])
 
     def task_of(shard: Shard) -> Task:
         path = shard_dir / (f"{shard.job.key}.{token}.{shard.first}-{shard.stop}"

@@ -307,7 +307,9 @@ class Supervisor:
                            "inputs": {i: v["topic"] for i, v in s["inputs"].items()},
                            "log": str(self.rundir / "logs" / f"{s['process']}.log")}
                        for n, s in specs.items()},
+            # as written ("auto") and as resolved on this machine
             "placement": self.topo.placement,
+            "placement_resolved": self.topo.resolved_placement(),
             "processes": {g: {"actors": members} for g, members in self.groups.items()},
         }
         if self.host is not None:

@@ -30,7 +30,7 @@ TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
                  "max_restarts": Annotated[int, Range(ge=0)],
                  "transport": Literal["ipc", "tcp"], "host": str, "description": str,
                  "queue": QUEUE, "ready_timeout_s": Annotated[float, Range(gt=0)],
-                 "placement": Literal["grouped", "isolated", "auto"]}
+                 "placement": Literal["grouped", "isolated", "single", "auto"]}
 # the name becomes a directory under the runs directory: no separators, no leading dot
 RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 ACTOR_RESERVED = {"run", "inputs", "keep", "cpus", "process", "host", "priority"}
@@ -43,9 +43,15 @@ REALTIME_PRIORITY = 10
 HOST_KEYS = {"address": str, "port": Annotated[int, Range(ge=1024, le=65535)]}
 DEFAULT_HOST_PORT = 47000
 DEFAULT_QUEUE = 32
-# `placement = "auto"` honours the actors' `process` groups on machines with at most this
-# many CPUs, and runs every actor alone on bigger ones (docs/runtime.md, "Process groups")
+# `placement = "auto"` runs every actor in one process when the run has one CPU to itself,
+# honours the actors' `process` groups when it has at most AUTO_GROUP_MAX_CPUS, and runs
+# every actor alone on more (docs/runtime.md, "Process groups")
 AUTO_GROUP_MAX_CPUS = 4
+# the one process of `placement = "single"`
+SINGLE_PROCESS = "all"
+# how many CPUs a run may count on, when several runs share the machine (the local pool of
+# `--workers N` sets it to its share for each worker); unset: the CPUs this process may use
+CPUS_ENV = "SEBVS_CPUS"
 
 
 class TopologyError(ValueError):
@@ -125,23 +131,36 @@ class Topology:
         return [(a.name, i) for a in self.active.values() for i in a.inputs.values()
                 if i.producer == producer and i.output == output]
 
+    def resolved_placement(self, cpus_available: int | None = None) -> str:
+        """"grouped", "isolated" or "single": what `placement` means on this machine.
+
+        `"auto"` is "single" when the run has one CPU to itself (``cpus_available``,
+        default: `run_cpus()`) and its actors can share a process (one host, the same
+        `cpus` and `priority`), "grouped" up to AUTO_GROUP_MAX_CPUS, else "isolated".
+        """
+        if self.placement != "auto":
+            return self.placement
+        cpus = run_cpus() if cpus_available is None else cpus_available
+        if cpus <= 1 and not self.hosts and _group_conflict(list(self.active.values())) is None:
+            return "single"
+        return "grouped" if cpus <= AUTO_GROUP_MAX_CPUS else "isolated"
+
     def processes(self, cpus_available: int | None = None) -> dict[str, list[str]]:
         """Process name -> the active actors it runs, in topology order.
 
         An actor with `process = "G"` runs in process G with the others that name G; one
         without runs alone in a process of its own name. `placement = "isolated"` runs
-        every actor alone whatever its `process` says; `"auto"` groups only on machines
-        with at most AUTO_GROUP_MAX_CPUS CPUs (``cpus_available``, default: the CPUs this
-        process may use), where actors mostly wait for each other's processes to wake up.
+        every actor alone whatever its `process` says, `"single"` all of them in one
+        process (SINGLE_PROCESS), and `"auto"` picks by the CPUs the run may count on
+        (`resolved_placement`): on few of them actors mostly wait for each other's
+        processes to wake up, and a process per CPU wastes the least.
         """
-        if cpus_available is None:
-            cpus_available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
-                else (os.cpu_count() or 1)
-        grouped = self.placement == "grouped" or (
-            self.placement == "auto" and cpus_available <= AUTO_GROUP_MAX_CPUS)
+        placement = self.resolved_placement(cpus_available)
+        if placement == "single":
+            return {SINGLE_PROCESS: list(self.active)}
         groups: dict[str, list[str]] = {}
         for a in self.active.values():
-            if grouped and a.process is not None:
+            if placement == "grouped" and a.process is not None:
                 groups.setdefault(a.process, []).append(a.name)
             else:
                 groups[a.name] = [a.name]
@@ -437,10 +456,43 @@ def _parse_process(value: Any, where: str) -> str:
     return value
 
 
+def run_cpus() -> int:
+    """The CPUs a run may count on: $SEBVS_CPUS when a pool shares the machine out (a
+    positive integer; anything else is ignored), else the CPUs this process may use."""
+    share = os.environ.get(CPUS_ENV, "")
+    if share.isdigit() and int(share) > 0:
+        return int(share)
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def _group_conflict(actors: list[ActorSpec]) -> str | None:
+    """Why these actors cannot share one process (None: they can): a process runs on one
+    host, at one priority, pinned to one set of CPUs."""
+    hosts = sorted({a.host for a in actors if a.host is not None})
+    if len(hosts) > 1:
+        return f"are placed on hosts {', '.join(hosts)}; a process runs on one host"
+    if len({a.priority for a in actors}) > 1:
+        shown = ", ".join(f"{a.name}: {a.priority}" for a in actors)
+        return f"ask for different priorities ({shown}); a priority is the whole process's"
+    if len({a.cpus for a in actors}) > 1:
+        shown = ", ".join(f"{a.name}: {list(a.cpus) or 'unpinned'}" for a in actors)
+        return (f"pin different CPUs ({shown}); `cpus` pins the whole process, so give "
+                f"them the same list or none")
+    return None
+
+
 def _check_groups(topo: Topology) -> None:
-    """A process group's members must agree on what is per process: its name must not be
-    another actor's (logs and processes are named after both), and `cpus` pins a whole
-    process, so its members must pin the same CPUs (or none)."""
+    """A process group's members must agree on what is per process (`_group_conflict`),
+    and its name must not be another actor's (logs and processes are named after both).
+    `placement = "single"` makes every actor a member of one group."""
+    if topo.placement == "single":
+        problem = _group_conflict(list(topo.active.values()))
+        if problem is not None:
+            raise TopologyError(f"{topo.path}: [topology] key 'placement': \"single\" runs "
+                                f"every actor in one process, but the actors {problem}")
+        return
     members: dict[str, list[ActorSpec]] = {}
     for a in topo.actors.values():
         if a.process is not None:
@@ -448,24 +500,12 @@ def _check_groups(topo: Topology) -> None:
     for group, actors in members.items():
         where = f"{topo.path}: [actors.{actors[0].name}] key 'process'"
         names = {a.name for a in actors}
-        hosts = sorted({a.host for a in actors if a.host is not None})
-        if len(hosts) > 1:
-            raise TopologyError(f"{where}: the members of group {group!r} are placed on "
-                                f"hosts {', '.join(hosts)}; a process runs on one host")
         if group in topo.actors and group not in names:
             raise TopologyError(f"{where}: group {group!r} has the name of actor {group!r}, "
                                 f"which is not in it; name the group apart")
-        priorities = {a.priority for a in actors}
-        if len(priorities) > 1:
-            shown = ", ".join(f"{a.name}: {a.priority}" for a in actors)
-            raise TopologyError(f"{where}: the members of group {group!r} ask for different "
-                                f"priorities ({shown}); a priority is the whole process's")
-        pins = {a.cpus for a in actors}
-        if len(pins) > 1:
-            shown = ", ".join(f"{a.name}: {list(a.cpus) or 'unpinned'}" for a in actors)
-            raise TopologyError(f"{where}: the members of group {group!r} pin different CPUs "
-                                f"({shown}); `cpus` pins the whole process, so give them "
-                                f"the same list or none")
+        problem = _group_conflict(actors)
+        if problem is not None:
+            raise TopologyError(f"{where}: the members of group {group!r} {problem}")
 
 
 def _prune(topo: Topology) -> None:

@@ -155,14 +155,30 @@ def disjoint_cpu_sets(workers: int, threads: int) -> list[tuple[int, ...]] | Non
     return [tuple(cpus[i * threads:(i + 1) * threads]) for i in range(workers)]
 
 
+def cpu_share(workers: int) -> int:
+    """CPUs each of `workers` workers on this machine may count on (at least one)."""
+    from sebvs.runtime.topology import run_cpus
+    return max(1, run_cpus() // max(1, workers))
+
+
+def _shared_cpus(worker: Callable[[Any], dict], task: Any, cpus: int) -> dict:
+    """Run `worker(task)` telling what it starts how many CPUs it may count on ($SEBVS_CPUS,
+    read by `placement = "auto"`: a worker with one CPU runs its topology in one process,
+    as a topology's 5-7 processes would otherwise compete with the other workers')."""
+    from sebvs.runtime.topology import CPUS_ENV
+    os.environ[CPUS_ENV] = str(cpus)
+    return worker(task)
+
+
 def _local_worker(worker: Callable[[Any], dict], task: Any, conn,
-                  cpus: tuple[int, ...] | None) -> None:
+                  cpus: tuple[int, ...] | None, share: int) -> None:
     """Entry of a spawned worker process: pin it to `cpus` (before torch or anything else
-    starts threads, which inherit the mask), run the task, send its result (or the error)."""
+    starts threads, which inherit the mask), run the task with `share` CPUs to count on,
+    send its result (or the error)."""
     try:
         if cpus:
             os.sched_setaffinity(0, cpus)
-        result = worker(task)
+        result = _shared_cpus(worker, task, len(cpus) if cpus else share)
     except BaseException as exc:       # noqa: BLE001 - reported to the driver, which retries
         result = {"label": getattr(task, "label", None), "code": None, "rundir": None,
                   "failure": f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"}
@@ -267,6 +283,7 @@ class _LocalBackend:
         self.workers = workers
         self.worker = worker
         self.cpu_sets = cpu_sets
+        self.share = cpu_share(workers)
         self.ctx = multiprocessing.get_context("spawn")
         self.procs: dict = {}       # sentinel -> (process, receiving end, shard, slot)
 
@@ -281,7 +298,7 @@ class _LocalBackend:
         task = replace(task, parent_pid=os.getpid())
         slot = min(set(range(self.workers)) - {p[3] for p in self.procs.values()})
         cpus = self.cpu_sets[slot] if self.cpu_sets else None
-        proc = self.ctx.Process(target=_local_worker, args=(self.worker, task, send, cpus),
+        proc = self.ctx.Process(target=_local_worker, args=(self.worker, task, send, cpus, self.share),
                                 name=f"sebvs-worker {shard}", daemon=False)
         proc.start()
         send.close()                # the child holds the only sending end now
@@ -353,7 +370,10 @@ class _RayBackend:
         self.workers = workers if workers and workers > 1 else max(1, cpus)
         # no Ray-level retries: a lost task's missing episodes are retried by fan_out, which
         # knows which of them the lost worker had already finished
-        self.remote = ray.remote(max_retries=0, **(resources or {"num_cpus": 1}))(worker)
+        resources = resources or {"num_cpus": 1}
+        self.worker = worker
+        self.share = max(1, int(resources.get("num_cpus", 1)))
+        self.remote = ray.remote(max_retries=0, **resources)(_shared_cpus)
         self.refs: dict = {}        # ObjectRef -> shard
 
     def running(self) -> bool:
@@ -363,7 +383,7 @@ class _RayBackend:
         return len(self.refs) < self.workers
 
     def submit(self, shard: Shard, task: Any) -> None:
-        self.refs[self.remote.remote(task)] = shard
+        self.refs[self.remote.remote(self.worker, task, self.share)] = shard
 
     def finished(self, timeout_s: float) -> list[tuple[Shard, dict | None]]:
         if not self.refs:
