@@ -76,7 +76,6 @@ class Camera(Actor):
         self.log.info("camera: rendering %s", sorted(self.wanted) or "nothing")
 
     def _build(self, scene_name: str, config: dict) -> None:
-        self._close()
         self.scene = make_scene(scene_name, **config)
         self.model = self.scene.compile()
         self.data = mujoco.MjData(self.model)
@@ -87,14 +86,27 @@ class Camera(Actor):
         self.h, self.w = self.scene.image_shape()
         self.blur = self.scene.rgb_blur()
         self.history: collections.deque = collections.deque(maxlen=max(1, self.blur))
-        self.renderer = FrameRenderer(self.model, self.h, self.w)
         k = self.params.luma_scale
         self.lh, self.lw = max(1, round(self.h * k)), max(1, round(self.w * k))
+        # a new scene every randomised episode: the renderers keep their GL contexts
+        self.renderer = self._renderer_for(self.renderer, self.h, self.w)
         if (self.lh, self.lw) != (self.h, self.w):
-            self.luma_renderer = FrameRenderer(self.model, self.lh, self.lw)
+            self.luma_renderer = self._renderer_for(self.luma_renderer, self.lh, self.lw)
+        elif self.luma_renderer is not None:    # luma now comes from the RGB render
+            self.luma_renderer.close()
+            self.luma_renderer = None
         self.key = (scene_name, config)
         self.log.info("camera: compiled %s %s, %dx%d, camera %s, blur %d", scene_name, config,
                       self.w, self.h, cam, self.blur)
+
+    def _renderer_for(self, renderer: FrameRenderer | None, h: int, w: int) -> FrameRenderer:
+        """`renderer` switched to the current model when it has the size, else a new one."""
+        if renderer is not None and (renderer.height, renderer.width) == (h, w):
+            renderer.set_model(self.model)
+            return renderer
+        if renderer is not None:
+            renderer.close()
+        return FrameRenderer(self.model, h, w)
 
     def _pose(self, state: dict) -> None:
         self.scene.set_state(self.model, self.data, state)

@@ -13,6 +13,9 @@ pipeline  real-time factor of the navigation expert topology with the event chai
           probe counts the event frames, so the entry says whether the event chain kept up
           (event_frames == ticks). Also topologies/nav_record.toml at dvs_hz 200 (the same
           chain with the recorder pacing the sim and writing HDF5): the recording speed.
+scene switch  milliseconds from a new model to its first frame: a fresh renderer against
+          FrameRenderer.set_model() in a warm GL context (what a randomised recording's
+          camera pays per episode)
 
 Targets (issue 4): nav front camera RGB 160x160 >= 1000 fps; arm wrist camera RGB 320x320
 >= 80 fps; nav expert topology >= 5x real time.
@@ -115,6 +118,36 @@ def bench_render(scene_name: str, config: dict, camera: str, size: int, kinds: l
                          "camera": camera, "size": f"{size}x{size}", "kind": kind,
                          "fps": round(statistics.median(rates), 1)})
     return rows
+
+
+def bench_scene_switch(size: int, repeats: int) -> dict:
+    """Milliseconds from a new model to its first frame, the nav variants alternating (what
+    the camera pays per randomised episode and renderer): a fresh FrameRenderer (its own
+    GL context, as mujoco.Renderer would) against set_model() in a warm one."""
+    models = []
+    for variant in ("outdoor", "indoor"):
+        scene = make_scene("nav", variant=variant)
+        model = scene.compile()
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        models.append((model, data))
+    frame = np.empty((size, size, 3), np.uint8)
+    fresh, switch = [], []
+    with FrameRenderer(models[0][0], size, size) as warm:
+        for i in range(2 * repeats):
+            model, data = models[i % 2]
+            t0 = time.perf_counter()
+            with FrameRenderer(model, size, size) as r:
+                r.update(data, "front")
+                r.rgb(frame)
+                fresh.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            warm.set_model(model)
+            warm.update(data, "front")
+            warm.rgb(frame)
+            switch.append(time.perf_counter() - t0)
+    return {"size": f"{size}x{size}", "fresh_renderer_ms": round(1e3 * statistics.median(fresh), 1),
+            "set_model_ms": round(1e3 * statistics.median(switch), 1), "switches": len(fresh)}
 
 
 EVENT_CHAIN = [
@@ -232,6 +265,14 @@ def main() -> int:
                       f"{row['kind']:6s} {row['fps']:8.1f} fps", flush=True)
         except Exception as exc:
             notes.append(f"render {name} {cam}: {type(exc).__name__}: {exc}")
+    for size in () if args.pipeline_only else (160, 80):   # the camera's RGB and luma sizes
+        try:
+            row = bench_scene_switch(size, repeats)
+            out.setdefault("scene_switch", []).append(row)
+            print(f"scene switch {row['size']}: fresh renderer {row['fresh_renderer_ms']} ms, "
+                  f"set_model {row['set_model_ms']} ms", flush=True)
+        except Exception as exc:
+            notes.append(f"scene switch {size}: {type(exc).__name__}: {exc}")
     placements = [p.strip() for p in args.placement.split(",") if p.strip()] or [None]
     runs = args.repeats or (1 if args.quick else 3)
     if not args.no_pipeline:

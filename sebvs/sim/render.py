@@ -27,27 +27,68 @@ import numpy as np  # noqa: E402
 
 
 class FrameRenderer:
-    """A mujoco.Renderer of one size, rendering named cameras into given arrays.
+    """Renders named cameras of a model at one size into given arrays.
 
     Use as a context manager (or call close()): it owns a GL context.
         with FrameRenderer(model, 160, 160) as r:
             r.update(data, "front")
             r.rgb(out_rgb); r.luma(out_luma, src=out_rgb)   # one render serves both
+            r.set_model(other_model)                        # a new scene, same context
+
+    Built on MuJoCo's rendering calls (mjv_updateScene, mjr_render, mjr_readPixels) rather
+    than mujoco.Renderer, so that a new model reuses the GL context: in a fresh context
+    the first MjrContext and render cost 90-190 ms on llvmpipe (shader compilation), in a
+    warm one 4-9 ms. A camera whose scene changes every episode (randomised recording)
+    pays that once per process instead of once per episode and renderer.
     """
 
-    def __init__(self, model: mujoco.MjModel, height: int, width: int) -> None:
-        self.model = model
+    def __init__(self, model: mujoco.MjModel, height: int, width: int,
+                 max_geom: int = 10_000) -> None:
+        from mujoco import gl_context
+        if gl_context.GLContext is None:
+            raise RuntimeError(f"no offscreen GL for MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}")
         self.height, self.width = int(height), int(width)
-        self._r = mujoco.Renderer(model, self.height, self.width)
+        self.max_geom = max_geom
+        self._gl = gl_context.GLContext(self.width, self.height)
+        self._gl.make_current()
+        self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
+        self._option = mujoco.MjvOption()
+        self._camera = mujoco.MjvCamera()
+        self._ctx: mujoco.MjrContext | None = None
         self._scratch = np.empty((self.height, self.width, 3), np.uint8)
+        self._depth_raw: np.ndarray | None = None
         self._acc: np.ndarray | None = None
-        self._mode = "rgb"
+        self.set_model(model)
+
+    def set_model(self, model: mujoco.MjModel) -> None:
+        """Render `model` from now on (its textures and meshes uploaded anew, in the same
+        GL context); call update() before the next render."""
+        g = model.vis.global_
+        if g.offwidth < self.width or g.offheight < self.height:
+            raise ValueError(f"the model's offscreen buffer is {g.offwidth}x{g.offheight}, "
+                             f"smaller than the {self.width}x{self.height} render: raise "
+                             f"<visual><global offwidth=... offheight=...> in its XML")
+        self._gl.make_current()
+        if self._ctx is not None:
+            self._ctx.free()
+        self.model = model
+        self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
+        # read depth as drawn (reversed Z: 1 at the near plane, 0 at the far one)
+        self._ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._scene = mujoco.MjvScene(model, maxgeom=self.max_geom)
+        self._camera_ids: dict[str, int] = {}
 
     # -- lifecycle ------------------------------------------------------------------
     def close(self) -> None:
-        if self._r is not None:
-            self._r.close()
-            self._r = None
+        if self._gl is None:
+            return
+        self._gl.make_current()
+        if self._ctx is not None:
+            self._ctx.free()
+            self._ctx = None
+        self._gl.free()
+        self._gl = None
 
     def __enter__(self) -> "FrameRenderer":
         return self
@@ -56,28 +97,55 @@ class FrameRenderer:
         self.close()
 
     # -- rendering ------------------------------------------------------------------
-    def _set_mode(self, mode: str) -> None:
-        if mode == self._mode:
-            return
-        r = self._r
-        r.disable_depth_rendering()
-        r.disable_segmentation_rendering()
-        if mode == "depth":
-            r.enable_depth_rendering()
-        elif mode == "seg":
-            r.enable_segmentation_rendering()
-        self._mode = mode
-
     def update(self, data: mujoco.MjData, camera: str | int) -> None:
-        """Pose the scene from `data` (its kinematics must be current) for `camera`."""
-        self._r.update_scene(data, camera=camera)
+        """Pose the scene from `data` (its kinematics must be current) for `camera` (a
+        name or an id of the model's cameras; -1: the free camera)."""
+        cam = self._camera
+        if isinstance(camera, str):
+            cam_id = self._camera_ids.get(camera)
+            if cam_id is None:
+                cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+                if cam_id < 0:
+                    raise ValueError(f"the model has no camera named {camera!r}")
+                self._camera_ids[camera] = cam_id
+        else:
+            cam_id = int(camera)
+            if not -1 <= cam_id < self.model.ncam:
+                raise ValueError(f"camera id {cam_id} is not in [-1, {self.model.ncam})")
+        if cam_id == -1:
+            mujoco.mjv_defaultFreeCamera(self.model, cam)
+        else:
+            cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            cam.fixedcamid = cam_id
+        mujoco.mjv_updateScene(self.model, data, self._option, None, cam,
+                               mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+
+    def _draw(self, rgb: np.ndarray | None, depth: np.ndarray | None,
+              segment: bool = False) -> None:
+        """Render the posed scene and read it back, bottom row first (OpenGL's order).
+
+        segment: draw each geom in a flat colour that encodes its segid + 1 (0 where
+        nothing is drawn), without the skybox: what segmentation() decodes, and what
+        depth() reads, so that empty pixels lie on the far plane.
+        """
+        self._gl.make_current()
+        flags = self._scene.flags
+        saved = flags.copy()
+        if segment:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        try:
+            mujoco.mjr_render(self._rect, self._scene, self._ctx)
+        finally:
+            flags[:] = saved
+        mujoco.mjr_readPixels(rgb, depth, self._rect, self._ctx)
 
     def rgb(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Render RGB into `out` ((H, W, 3) uint8, C-contiguous) or a new array."""
-        self._set_mode("rgb")
+        """Render RGB into `out` ((H, W, 3) uint8) or a new array."""
         if out is None:
             out = np.empty((self.height, self.width, 3), np.uint8)
-        self._r.render(out=out)
+        self._draw(self._scratch, None)
+        cv2.flip(self._scratch, 0, dst=out)
         return out
 
     def luma(self, out: np.ndarray | None = None, src: np.ndarray | None = None) -> np.ndarray:
@@ -92,19 +160,46 @@ class FrameRenderer:
         return out
 
     def depth(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Depth (H, W) float32 in metres."""
-        self._set_mode("depth")
+        """Depth (H, W) float32 in metres along the camera axis."""
         if out is None:
             out = np.empty((self.height, self.width), np.float32)
-        self._r.render(out=out)
+        if self._depth_raw is None:
+            self._depth_raw = np.empty((self.height, self.width), np.float32)
+        self._draw(None, self._depth_raw, segment=True)
+        # reversed Z (readDepthMap, set_model): 1 at the near clipping plane, 0 at the far
+        # one. Undone with the projection's own coefficients, rounded to float32 as the GL
+        # matrix holds them (exact ones are off by ~3e-4 relative), then in float64: the
+        # hyperbola loses centimetres at range in float32.
+        f32 = np.float32
+        extent = self.model.stat.extent
+        near, far = f32(self.model.vis.map.znear * extent), f32(self.model.vis.map.zfar * extent)
+        d = self._depth_raw.astype(np.float64)
+        if self._scene.camera[0].orthographic:
+            metres = far - d * (far - near)
+        else:
+            # the standard frustum's depth row (-(f+n)/(f-n), -2fn/(f-n)), mapped to
+            # reversed Z's [1, 0]
+            a = f32(-0.5) * (-(far + near) / (far - near)) - f32(0.5)
+            b = f32(-0.5) * (-(f32(2) * far * near) / (far - near))
+            metres = b / (d + a)
+        out[...] = metres[::-1]
         return out
 
     def segmentation(self, out: np.ndarray | None = None) -> np.ndarray:
         """Segmentation (H, W, 2) int32: [object id, object type]; -1 for background."""
-        self._set_mode("seg")
         if out is None:
             out = np.empty((self.height, self.width, 2), np.int32)
-        self._r.render(out=out)
+        self._draw(self._scratch, None, segment=True)
+        code = self._scratch.astype(np.int32)
+        code = code[..., 0] | (code[..., 1] << 8) | (code[..., 2] << 16)
+        n = self._scene.ngeom
+        table = np.full((n + 2, 2), -1, np.int32)
+        for geom in self._scene.geoms[:n]:
+            if geom.segid >= 0:
+                table[geom.segid + 1] = (geom.objid, geom.objtype)
+        # a code past the table (not a colour this scene drew) reads as background
+        np.minimum(code, n + 1, out=code)
+        out[...] = table[code[::-1]]
         return out
 
     def rgb_blurred(self, data: mujoco.MjData, camera: str | int, poses, out: np.ndarray,
