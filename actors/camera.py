@@ -88,25 +88,22 @@ class Camera(Actor):
         self.history: collections.deque = collections.deque(maxlen=max(1, self.blur))
         k = self.params.luma_scale
         self.lh, self.lw = max(1, round(self.h * k)), max(1, round(self.w * k))
-        # a new scene every randomised episode: the renderers keep their GL contexts
-        self.renderer = self._renderer_for(self.renderer, self.h, self.w)
-        if (self.lh, self.lw) != (self.h, self.w):
-            self.luma_renderer = self._renderer_for(self.luma_renderer, self.lh, self.lw)
-        elif self.luma_renderer is not None:    # luma now comes from the RGB render
-            self.luma_renderer.close()
-            self.luma_renderer = None
+        # a new scene every randomised episode: the renderer keeps its GL context, and
+        # the luma renderer is a view of it (one context, one upload, one scene update)
+        if self.renderer is not None and (self.renderer.height, self.renderer.width) == \
+                (self.h, self.w):
+            self.renderer.set_model(self.model)
+        else:
+            self._close()
+            self.renderer = FrameRenderer(self.model, self.h, self.w)
+        if (self.lh, self.lw) == (self.h, self.w):
+            self.luma_renderer = None           # luma comes from the RGB render
+        elif self.luma_renderer is None or (self.luma_renderer.height,
+                                            self.luma_renderer.width) != (self.lh, self.lw):
+            self.luma_renderer = self.renderer.view(self.lh, self.lw)
         self.key = (scene_name, config)
         self.log.info("camera: compiled %s %s, %dx%d, camera %s, blur %d", scene_name, config,
                       self.w, self.h, cam, self.blur)
-
-    def _renderer_for(self, renderer: FrameRenderer | None, h: int, w: int) -> FrameRenderer:
-        """`renderer` switched to the current model when it has the size, else a new one."""
-        if renderer is not None and (renderer.height, renderer.width) == (h, w):
-            renderer.set_model(self.model)
-            return renderer
-        if renderer is not None:
-            renderer.close()
-        return FrameRenderer(self.model, h, w)
 
     def _pose(self, state: dict) -> None:
         self.scene.set_state(self.model, self.data, state)
@@ -143,11 +140,7 @@ class Camera(Actor):
             return
         self._pose(msg.arrays)
         r = self.renderer
-        # the full-size scene only when something of that size is drawn: between RGB times
-        # only the luma renderer's (mjv_updateScene costs ~10 us a state)
-        if want_rgb or (rgb_due and self.wanted & {"depth", "seg"}) \
-                or self.luma_renderer is None:
-            r.update(self.data, self.cam)
+        r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
         sharp = None          # an unblurred RGB render of this sample, if made
         if want_rgb:
@@ -164,7 +157,6 @@ class Camera(Actor):
         if want_luma:
             out = self.reserve("luma", {"luma": ((self.lh, self.lw), np.uint8)})
             if self.luma_renderer is not None:
-                self.luma_renderer.update(self.data, self.cam)
                 self.luma_renderer.luma(out["luma"])
             else:
                 r.luma(out["luma"], src=sharp)
@@ -196,9 +188,8 @@ class Camera(Actor):
         self.history.append({k: np.array(a) for k, a in state.items()})
 
     def _close(self) -> None:
-        for r in (self.renderer, self.luma_renderer):
-            if r is not None:
-                r.close()
+        if self.renderer is not None:
+            self.renderer.close()           # and its view, the luma renderer
         self.renderer = self.luma_renderer = None
 
     async def teardown(self) -> None:

@@ -89,3 +89,22 @@ def test_the_camera_keeps_its_renderers_when_the_scene_changes():
     cam._build("nav", {"variant": "outdoor", "width": 96, "height": 96})   # another size
     assert cam.renderer is not rgb_r and (cam.renderer.height, cam.luma_renderer.width) == (96, 48)
     asyncio.run(cam.teardown())
+
+
+def test_a_view_draws_as_a_renderer_of_its_size_and_follows_the_model():
+    (_, outdoor, d_out), (_, indoor, d_in) = posed("nav", variant="outdoor"), \
+        posed("nav", variant="indoor")
+    with FrameRenderer(indoor, 80, 80) as alone:
+        alone.update(d_in, "front")
+        expected = alone.luma(), alone.depth()
+    with FrameRenderer(outdoor, 160, 160) as r:
+        small = r.view(80, 80)
+        r.set_model(indoor)                   # switches the view's model too
+        r.update(d_in, "front")               # and poses its scene
+        big = r.rgb()
+        np.testing.assert_array_equal(small.luma(), expected[0])
+        np.testing.assert_array_equal(small.depth(), expected[1])
+        np.testing.assert_array_equal(r.rgb(), big)
+        assert small.model is indoor and big.shape == (160, 160, 3)
+        with pytest.raises(ValueError, match="smaller than the 800x800 render"):
+            r.view(800, 800)

@@ -26,69 +26,143 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 
+class _Canvas:
+    """One GL context, the current model's MjrContext and the posed scene: what the
+    renderers of several sizes sharing it (FrameRenderer.view) draw from."""
+
+    def __init__(self, max_geom: int) -> None:
+        from mujoco import gl_context
+        if gl_context.GLContext is None:
+            raise RuntimeError(f"no offscreen GL for MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}")
+        # the context's own surface is never drawn to: renders go to the model's
+        # offscreen buffer (<visual><global offwidth offheight>)
+        self.gl = gl_context.GLContext(1, 1)
+        self.gl.make_current()
+        self.max_geom = max_geom
+        self.option = mujoco.MjvOption()
+        self.camera = mujoco.MjvCamera()
+        self.ctx: mujoco.MjrContext | None = None
+        self.sizes: list[tuple[int, int]] = []     # (height, width) of every renderer on it
+
+    def check(self, model: mujoco.MjModel, height: int, width: int) -> None:
+        g = model.vis.global_
+        if g.offwidth < width or g.offheight < height:
+            raise ValueError(f"the model's offscreen buffer is {g.offwidth}x{g.offheight}, "
+                             f"smaller than the {width}x{height} render: raise "
+                             f"<visual><global offwidth=... offheight=...> in its XML")
+
+    def set_model(self, model: mujoco.MjModel) -> None:
+        for height, width in self.sizes:
+            self.check(model, height, width)
+        self.gl.make_current()
+        if self.ctx is not None:
+            self.ctx.free()
+        self.model = model
+        self.ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.ctx)
+        # read depth as drawn (reversed Z: 1 at the near plane, 0 at the far one)
+        self.ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self.scene = mujoco.MjvScene(model, maxgeom=self.max_geom)
+        self.camera_ids: dict[str, int] = {}
+
+    def update(self, data: mujoco.MjData, camera: str | int) -> None:
+        cam = self.camera
+        if isinstance(camera, str):
+            cam_id = self.camera_ids.get(camera)
+            if cam_id is None:
+                cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+                if cam_id < 0:
+                    raise ValueError(f"the model has no camera named {camera!r}")
+                self.camera_ids[camera] = cam_id
+        else:
+            cam_id = int(camera)
+            if not -1 <= cam_id < self.model.ncam:
+                raise ValueError(f"camera id {cam_id} is not in [-1, {self.model.ncam})")
+        if cam_id == -1:
+            mujoco.mjv_defaultFreeCamera(self.model, cam)
+        else:
+            cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            cam.fixedcamid = cam_id
+        mujoco.mjv_updateScene(self.model, data, self.option, None, cam,
+                               mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+
+    def draw(self, rect: mujoco.MjrRect, rgb: np.ndarray | None, depth: np.ndarray | None,
+             segment: bool) -> None:
+        self.gl.make_current()
+        flags = self.scene.flags
+        saved = flags.copy()
+        if segment:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        try:
+            mujoco.mjr_render(rect, self.scene, self.ctx)
+        finally:
+            flags[:] = saved
+        mujoco.mjr_readPixels(rgb, depth, rect, self.ctx)
+
+    def close(self) -> None:
+        self.gl.make_current()
+        if self.ctx is not None:
+            self.ctx.free()
+            self.ctx = None
+        self.gl.free()
+
+
 class FrameRenderer:
     """Renders named cameras of a model at one size into given arrays.
 
-    Use as a context manager (or call close()): it owns a GL context.
+    Use as a context manager (or call close()): it owns a GL context, unless it is a
+    view() of another renderer, which then holds the context for both.
         with FrameRenderer(model, 160, 160) as r:
-            r.update(data, "front")
+            small = r.view(80, 80)                          # the same scene, 80 px
+            r.update(data, "front")                         # poses both
             r.rgb(out_rgb); r.luma(out_luma, src=out_rgb)   # one render serves both
+            small.luma(out_small)
             r.set_model(other_model)                        # a new scene, same context
 
     Built on MuJoCo's rendering calls (mjv_updateScene, mjr_render, mjr_readPixels) rather
     than mujoco.Renderer, so that a new model reuses the GL context: in a fresh context
-    the first MjrContext and render cost 90-190 ms on llvmpipe (shader compilation), in a
-    warm one 4-9 ms. A camera whose scene changes every episode (randomised recording)
-    pays that once per process instead of once per episode and renderer.
+    the first MjrContext and render cost about 120 ms on llvmpipe (shader compilation),
+    in a warm one about 22 ms. A camera whose scene changes every episode (randomised
+    recording) pays that once per process instead of once per episode and renderer; and
+    renderers of several sizes (the camera's RGB and its smaller luma) share one context,
+    one upload of the model and one scene update per pose.
     """
 
     def __init__(self, model: mujoco.MjModel, height: int, width: int,
-                 max_geom: int = 10_000) -> None:
-        from mujoco import gl_context
-        if gl_context.GLContext is None:
-            raise RuntimeError(f"no offscreen GL for MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}")
+                 max_geom: int = 10_000, *, _canvas: _Canvas | None = None) -> None:
         self.height, self.width = int(height), int(width)
-        self.max_geom = max_geom
-        self._gl = gl_context.GLContext(self.width, self.height)
-        self._gl.make_current()
+        self._owner = _canvas is None
+        canvas = _Canvas(max_geom) if _canvas is None else _canvas
+        canvas.check(model if _canvas is None else canvas.model, self.height, self.width)
+        canvas.sizes.append((self.height, self.width))
+        self._canvas = canvas
         self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
-        self._option = mujoco.MjvOption()
-        self._camera = mujoco.MjvCamera()
-        self._ctx: mujoco.MjrContext | None = None
         self._scratch = np.empty((self.height, self.width, 3), np.uint8)
         self._depth_raw: np.ndarray | None = None
         self._acc: np.ndarray | None = None
-        self.set_model(model)
+        if self._owner:
+            canvas.set_model(model)
+
+    def view(self, height: int, width: int) -> "FrameRenderer":
+        """A renderer of another size on this one's GL context, model and scene: update()
+        on either poses both, set_model() on either switches both. Closed with this one."""
+        return FrameRenderer(self._canvas.model, height, width, _canvas=self._canvas)
+
+    @property
+    def model(self) -> mujoco.MjModel:
+        return self._canvas.model
 
     def set_model(self, model: mujoco.MjModel) -> None:
         """Render `model` from now on (its textures and meshes uploaded anew, in the same
         GL context); call update() before the next render."""
-        g = model.vis.global_
-        if g.offwidth < self.width or g.offheight < self.height:
-            raise ValueError(f"the model's offscreen buffer is {g.offwidth}x{g.offheight}, "
-                             f"smaller than the {self.width}x{self.height} render: raise "
-                             f"<visual><global offwidth=... offheight=...> in its XML")
-        self._gl.make_current()
-        if self._ctx is not None:
-            self._ctx.free()
-        self.model = model
-        self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
-        # read depth as drawn (reversed Z: 1 at the near plane, 0 at the far one)
-        self._ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
-        self._scene = mujoco.MjvScene(model, maxgeom=self.max_geom)
-        self._camera_ids: dict[str, int] = {}
+        self._canvas.set_model(model)
 
     # -- lifecycle ------------------------------------------------------------------
     def close(self) -> None:
-        if self._gl is None:
-            return
-        self._gl.make_current()
-        if self._ctx is not None:
-            self._ctx.free()
-            self._ctx = None
-        self._gl.free()
-        self._gl = None
+        if self._owner and self._canvas is not None:
+            self._canvas.close()
+        self._canvas = None
 
     def __enter__(self) -> "FrameRenderer":
         return self
@@ -100,25 +174,7 @@ class FrameRenderer:
     def update(self, data: mujoco.MjData, camera: str | int) -> None:
         """Pose the scene from `data` (its kinematics must be current) for `camera` (a
         name or an id of the model's cameras; -1: the free camera)."""
-        cam = self._camera
-        if isinstance(camera, str):
-            cam_id = self._camera_ids.get(camera)
-            if cam_id is None:
-                cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-                if cam_id < 0:
-                    raise ValueError(f"the model has no camera named {camera!r}")
-                self._camera_ids[camera] = cam_id
-        else:
-            cam_id = int(camera)
-            if not -1 <= cam_id < self.model.ncam:
-                raise ValueError(f"camera id {cam_id} is not in [-1, {self.model.ncam})")
-        if cam_id == -1:
-            mujoco.mjv_defaultFreeCamera(self.model, cam)
-        else:
-            cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
-            cam.fixedcamid = cam_id
-        mujoco.mjv_updateScene(self.model, data, self._option, None, cam,
-                               mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+        self._canvas.update(data, camera)
 
     def _draw(self, rgb: np.ndarray | None, depth: np.ndarray | None,
               segment: bool = False) -> None:
@@ -128,17 +184,7 @@ class FrameRenderer:
         nothing is drawn), without the skybox: what segmentation() decodes, and what
         depth() reads, so that empty pixels lie on the far plane.
         """
-        self._gl.make_current()
-        flags = self._scene.flags
-        saved = flags.copy()
-        if segment:
-            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
-            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
-        try:
-            mujoco.mjr_render(self._rect, self._scene, self._ctx)
-        finally:
-            flags[:] = saved
-        mujoco.mjr_readPixels(rgb, depth, self._rect, self._ctx)
+        self._canvas.draw(self._rect, rgb, depth, segment)
 
     def rgb(self, out: np.ndarray | None = None) -> np.ndarray:
         """Render RGB into `out` ((H, W, 3) uint8) or a new array."""
@@ -174,7 +220,7 @@ class FrameRenderer:
         extent = self.model.stat.extent
         near, far = f32(self.model.vis.map.znear * extent), f32(self.model.vis.map.zfar * extent)
         d = self._depth_raw.astype(np.float64)
-        if self._scene.camera[0].orthographic:
+        if self._canvas.scene.camera[0].orthographic:
             metres = far - d * (far - near)
         else:
             # the standard frustum's depth row (-(f+n)/(f-n), -2fn/(f-n)), mapped to
@@ -192,9 +238,10 @@ class FrameRenderer:
         self._draw(self._scratch, None, segment=True)
         code = self._scratch.astype(np.int32)
         code = code[..., 0] | (code[..., 1] << 8) | (code[..., 2] << 16)
-        n = self._scene.ngeom
+        scene = self._canvas.scene
+        n = scene.ngeom
         table = np.full((n + 2, 2), -1, np.int32)
-        for geom in self._scene.geoms[:n]:
+        for geom in scene.geoms[:n]:
             if geom.segid >= 0:
                 table[geom.segid + 1] = (geom.objid, geom.objtype)
         # a code past the table (not a colour this scene drew) reads as background
