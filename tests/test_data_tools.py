@@ -6,7 +6,7 @@ import pytest
 
 from sebvs.cli import main
 from sebvs.data.episode import EpisodeWriter
-from sebvs.data.index import DatasetIndex, make_entry
+from sebvs.data.index import DatasetIndex, make_entry, write_json_atomic
 
 
 def make_dataset(root, task="nav", episodes=3, frames=20, side=32, conditions=None):
@@ -98,3 +98,36 @@ def test_stats_shows_the_coverage_of_what_varies(tmp_path, capsys):
     assert "flicker_hz     5.5 .. 13.5" in out
     assert "belt           0.08 5 / 50, 0.25 4 / 40" in out        # a few choices: a row each
     assert "lighting" not in out and "width" not in out          # the same everywhere
+
+
+def test_compare_finds_the_same_recording_and_names_what_differs(tmp_path, capsys):
+    import h5py
+    a, b = tmp_path / "a", tmp_path / "b"
+    make_dataset(a)
+    shutil.copytree(a, b)
+    with h5py.File(b / "episode_0000.h5", "r+") as f:
+        f["tick"][...] = f["tick"][()] + 40         # another run's tick numbers: the same
+        f.create_dataset("latency/sim->camera", data=np.ones(20, np.float32))
+        f["t_sim"][...] = f["t_sim"][()] + 2.0
+    assert main(["data", "compare", str(a), str(b), "--quiet"]) == 1   # latency only in b
+    out = capsys.readouterr().out
+    assert "episode_0000.h5: dataset latency/sim->camera: only in" in out
+    with h5py.File(a / "episode_0000.h5", "r+") as f:
+        f.create_dataset("latency/sim->camera", data=np.zeros(20, np.float32))
+    assert main(["data", "compare", str(a), str(b), "--quiet"]) == 0
+    assert "3 episode pair(s) compared: 3 the same, 0 different" in capsys.readouterr().out
+
+    with h5py.File(b / "episode_0002.h5", "r+") as f:
+        f["action"][7, 1] += 0.5
+        f.attrs["seed"] = 4
+    (b / "episode_0001.h5").unlink()
+    idx = DatasetIndex(b)
+    idx.data["episodes"] = [e for e in idx.episodes() if e["file"] != "episode_0001.h5"]
+    write_json_atomic(idx.path, idx.data)
+    assert main(["data", "compare", str(a), str(b), "--quiet"]) == 1
+    out = capsys.readouterr().out
+    assert "episode_0002.h5: dataset action: 1 element(s) differ, first at (7, 1)" in out
+    assert "episode_0002.h5: attribute seed: '3' against '4'" in out
+    assert f"episode_0001.h5: only in {a}" in out
+    assert "2 episode pair(s) compared: 1 the same, 1 different; 1 only in" in out
+    assert main(["data", "compare", str(a), str(tmp_path / "nowhere")]) == 2

@@ -92,7 +92,7 @@ def test_the_camera_keeps_its_renderers_when_the_scene_changes():
 
 
 def test_a_view_draws_as_a_renderer_of_its_size_and_follows_the_model():
-    (_, outdoor, d_out), (_, indoor, d_in) = posed("nav", variant="outdoor"), \
+    (_, outdoor, _), (_, indoor, d_in) = posed("nav", variant="outdoor"), \
         posed("nav", variant="indoor")
     with FrameRenderer(indoor, 80, 80) as alone:
         alone.update(d_in, "front")

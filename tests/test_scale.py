@@ -9,11 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
-import numpy as np
 import pytest
 
 from sebvs.cli import main
 from sebvs.data.check import check_dataset
+from sebvs.data.compare import episode_differences
 from sebvs.data.index import DatasetIndex
 from sebvs.data.record import SHARD_INFO, STAGING, adopt_staged
 from sebvs.scale import RayMissing, Shard, ShardsLost, Task, fan_out, split_episodes
@@ -36,34 +36,19 @@ def test_split_episodes_covers_the_range_in_near_equal_contiguous_parts():
     assert split_episodes(3, 3, 2) == []
 
 
-def _datasets(h5: h5py.File) -> dict:
-    out = {}
-    h5.visititems(lambda name, obj: out.__setitem__(name, obj[()])
-                  if isinstance(obj, h5py.Dataset) else None)
-    return out
-
-
 def assert_same_episode(a: Path, b: Path) -> None:
-    """Every per-frame array and attribute equal, except what is not the episode's: the
-    measured hop latencies (wall clock), and tick / t_sim, which count from the start of
-    the run (a worker's run starts at its first episode), so compared from the episode's
-    first frame."""
-    with h5py.File(a) as fa, h5py.File(b) as fb:
-        da, db = _datasets(fa), _datasets(fb)
-        assert set(da) == set(db)
-        compared = 0
-        for key, va in da.items():
-            vb = db[key]
-            if key.startswith("latency/"):
-                continue
-            if key in ("tick", "t_sim"):
-                np.testing.assert_allclose(va - va[0], vb - vb[0], err_msg=key)
-            else:
-                np.testing.assert_array_equal(va, vb, err_msg=f"{a.name}: {key}")
-            compared += 1
-        assert compared >= 5 and "rgb" in da and "events/frame" in da and "action" in da
-        assert {k: str(v) for k, v in fa.attrs.items()} == \
-            {k: str(v) for k, v in fb.attrs.items()}
+    """Every per-frame array and attribute equal, except what is not the episode's
+    (sebvs/data/compare.py: the hop latencies; tick and t_sim from the first frame)."""
+    assert episode_differences(a, b) == []
+    with h5py.File(a) as fa:
+        assert {"rgb", "events/frame", "action", "tick", "t_sim"} <= set(_names(fa))
+
+
+def _names(h5: h5py.File) -> list[str]:
+    names = []
+    h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset)
+                  else None)
+    return names
 
 
 def test_record_on_two_workers_gives_the_episode_files_of_one(tmp_path):

@@ -12,6 +12,11 @@ def _stats(args) -> int:
     return cmd_stats(args)
 
 
+def _compare(args) -> int:
+    from .compare import cmd_compare
+    return cmd_compare(args)
+
+
 def _record(args) -> int:
     from .record import cmd_record
     return cmd_record(args)
@@ -39,7 +44,7 @@ def add_fanout_arguments(parser, what: str) -> None:
 
 
 def register(sub) -> None:
-    d = sub.add_parser("data", help="dataset tools: check, stats",
+    d = sub.add_parser("data", help="dataset tools: check, stats, compare",
                        description="Inspect recorded datasets (one HDF5 file per episode "
                                    "plus index.json).")
     dsub = d.add_subparsers(dest="data_cmd", metavar="SUBCOMMAND", required=True)
@@ -57,6 +62,22 @@ def register(sub) -> None:
     s.add_argument("dir", help="dataset directory")
     s.add_argument("--plot", metavar="FILE", help="write the figure (PNG)")
     s.set_defaults(func=_stats)
+    m = dsub.add_parser("compare", help="are two datasets the same recording?",
+                        description="Pair the episodes of two datasets by file name and "
+                                    "compare every array and attribute, except the hop "
+                                    "latencies (wall clock) and tick / t_sim (compared from "
+                                    "each episode's first frame: they count from the start "
+                                    "of the run that recorded it). Two lockstep recordings "
+                                    "of one topology and seed are the same whatever the "
+                                    "worker count or placement. Exit code 0 when every "
+                                    "episode is the same, 1 when any differs or is missing "
+                                    "on one side, 2 when a directory is not a dataset.")
+    m.add_argument("a", help="dataset directory")
+    m.add_argument("b", help="dataset directory")
+    m.add_argument("--max-lines", type=int, default=10, metavar="N",
+                   help="differences shown per episode (default 10)")
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.set_defaults(func=_compare)
 
     r = sub.add_parser("record", help="record expert demonstrations into a dataset",
                        description="Run a recording topology until its recorder has "
