@@ -1,7 +1,8 @@
 """The expert actor: detector + nav PID follower, or detector + arm pre-grasp pose.
 
 Inputs  rgb    from the camera: arrays["rgb"] uint8 [H, W, 3], tick, t_sim, meta episode,
-               control (samples with control=False, between control ticks, are ignored)
+               t_ep (episode time: dt between ticks), control (samples with control=False,
+               between control ticks, are ignored)
         depth  (arm) from the camera: arrays["depth"] float32 [H, W] m, same ticks as rgb
         state  (arm) from the sim: the wrist camera's pose is computed from qpos with the
                expert's own copy of the model (compiled from the first sample's scene +
@@ -17,6 +18,7 @@ The library code is sebvs.experts (detector, pid, nav, arm); this module only wi
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
@@ -137,16 +139,23 @@ class Expert(Actor):
     def _new_tick(self, msg: Message) -> float:
         """Episode bookkeeping; returns dt (s) since the previous control tick."""
         ep = msg.meta.get("episode")
-        if ep != self.episode or self.last_t is None or msg.t_sim is None:
+        # the episode's own clock when the frame carries it: t_sim counts from the start of
+        # the run, and a difference of two large times rounds with that offset, so an
+        # episode played by another worker (another offset) got dt, and so actions, a few
+        # ulps apart (3 of 70 episodes of a 2-worker recording, `sebvs data compare`)
+        t = msg.meta.get("t_ep")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+            t = msg.t_sim
+        if ep != self.episode or self.last_t is None or t is None:
             self.episode = ep
             if self.params.task == "nav":
                 self.nav.reset()
             dt = 1.0 / self.params.control_hz
         else:
-            dt = msg.t_sim - self.last_t
+            dt = t - self.last_t
             if not dt > 0:
                 dt = 1.0 / self.params.control_hz
-        self.last_t = msg.t_sim
+        self.last_t = t
         if self.last_tick is not None and msg.tick is not None and msg.tick > self.last_tick + 1:
             self.counts["skipped_ticks"] += msg.tick - self.last_tick - 1
         self.last_tick = msg.tick

@@ -57,6 +57,35 @@ def test_nav_expert_answers_every_control_tick_in_process():
     assert ex.stats()["missed"] == 5
 
 
+def test_nav_expert_actions_do_not_depend_on_where_the_run_started():
+    """The same episode played by runs that started at different times (a worker of a
+    fan-out starts at its first episode: another t_sim offset) gets the same control steps,
+    bit for bit: dt comes from the episode's clock (meta t_ep), not from differences of
+    t_sim, which round with the offset (and then, rarely, flip an action's last bit)."""
+    img = np.full((160, 160, 3), 120, np.uint8)
+    runs = []
+    for offset in (0.0, 1470.0000000006694):        # t_sim of a late episode in one run
+        node = FakeNode()
+        ex = Expert("expert", Expert.Params(), seed=0, clock="lockstep",
+                    consumed=frozenset({"action"}), connected=frozenset({"rgb"}), node=node)
+        asyncio.run(ex.setup())
+        steps, act = [], ex.nav.act
+        ex.nav.act = lambda det, size, dt: steps.append(dt) or act(det, size, dt)
+        for k in range(12):
+            frame = img.copy()
+            cv2.rectangle(frame, (20 + 11 * k, 70), (29 + 12 * k, 79 + k), (230, 38, 25), -1)
+            t_ep = k * 0.1                            # accumulated as the sim's data.time
+            msg = Message(topic="t", source="camera", output="rgb", seq=k,
+                          t_sim=offset + t_ep, tick=k, stamps=[],
+                          meta={"episode": 5, "control": True, "t_ep": t_ep},
+                          arrays={"rgb": frame})
+            asyncio.run(ex.on_rgb(msg))
+        actions = [e[1]["action"].tobytes() for e in node.emitted if e[0] == "action"]
+        runs.append((steps, actions))
+    assert len(runs[0][0]) == 12 and runs[0] == runs[1]
+    assert runs[0][0][1:] == [k * 0.1 - (k - 1) * 0.1 for k in range(1, 12)]
+
+
 def test_nav_expert_topology_closes_the_loop(tmp_path):
     probe = tmp_path / "probe"
     track = tmp_path / "track.jsonl"
