@@ -146,7 +146,8 @@ def bench_scene_switch(size: int, repeats: int) -> dict:
             warm.update(data, "front")
             warm.rgb(frame)
             switch.append(time.perf_counter() - t0)
-    return {"size": f"{size}x{size}", "fresh_renderer_ms": round(1e3 * statistics.median(fresh), 1),
+    return {"size": f"{size}x{size}",
+            "fresh_renderer_ms": round(1e3 * statistics.median(fresh), 1),
             "set_model_ms": round(1e3 * statistics.median(switch), 1), "switches": len(fresh)}
 
 

@@ -346,9 +346,10 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
     """Every run's episodes as shards on workers (sebvs/scale), merged in episode order.
 
     A run is split into ceil(workers / runs) contiguous episode ranges (several runs fill
-    the workers first, each started once), queued longest first; a shard plays episodes [a, b) of its run
-    (sim.first_episode = a: the seeds and episode numbers of one process) and its tracker
-    writes <out>/episodes/.shards/<run>.<token>.<a>-<b>.try<n>.jsonl. The driver keeps
+    the workers first, each started once), queued longest first; a shard plays episodes
+    [a, b) of its run (sim.first_episode = a: the seeds and episode numbers of one
+    process) and its tracker writes
+    <out>/episodes/.shards/<run>.<token>.<a>-<b>.try<n>.jsonl. The driver keeps
     the lines of the shard's episodes and, once a run has all N, writes the run's episode
     file sorted by episode (tmp file + rename): the same lines whatever the split or the
     order the workers finished in. A run that is not complete is rerun whole on resume,

@@ -298,7 +298,8 @@ class _LocalBackend:
         task = replace(task, parent_pid=os.getpid())
         slot = min(set(range(self.workers)) - {p[3] for p in self.procs.values()})
         cpus = self.cpu_sets[slot] if self.cpu_sets else None
-        proc = self.ctx.Process(target=_local_worker, args=(self.worker, task, send, cpus, self.share),
+        proc = self.ctx.Process(target=_local_worker,
+                                args=(self.worker, task, send, cpus, self.share),
                                 name=f"sebvs-worker {shard}", daemon=False)
         proc.start()
         send.close()                # the child holds the only sending end now
