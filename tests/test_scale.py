@@ -234,3 +234,24 @@ def test_each_local_worker_is_told_its_share_of_the_cpus(monkeypatch, workers, s
     fan_out([Shard("job", k, k + 1) for k in range(workers)], lambda s: _Probe(str(s)),
             collect, workers=workers, worker=_report_cpu_share, echo=lambda text: None)
     assert shares == [share] * workers
+
+
+def test_a_recording_into_a_dataset_plays_on_with_the_seeds_episodes(tmp_path):
+    """Two episodes, then one, then two more on two workers, into the same dataset: it is
+    the five-episode recording made at once, not episodes 0-1 again and again."""
+    from sebvs.data.compare import compare_datasets
+    topo = str(ROOT / "topologies" / "nav_record.toml")
+
+    def record(out, episodes, *extra):
+        assert main(["record", topo, "--episodes", str(episodes), "--out", str(out),
+                     "--runs-dir", str(tmp_path / "runs"), "--quiet", "--timeout", "120",
+                     *SMALL_RECORD, *extra]) == 0
+
+    record(tmp_path / "whole", 5)
+    record(tmp_path / "parts", 2)
+    record(tmp_path / "parts", 1)
+    record(tmp_path / "parts", 2, "--workers", "2")      # episodes 3 and 4, a shard each
+    result = compare_datasets(tmp_path / "whole", tmp_path / "parts")
+    assert result.identical and len(result.same) == 5, result.different
+    seeds = [e["seed"] for e in DatasetIndex(tmp_path / "parts").episodes()]
+    assert len(set(seeds)) == 5

@@ -4,18 +4,21 @@ Runs the topology with the runtime's Supervisor, overriding the recorder's ``out
 ``episodes`` and ``topology`` params, and shows a progress bar (episodes, frames, speed in
 simulated seconds per wall second) from the recorder's ``stats`` on its control socket.
 The recorder ends the run after N finished episodes; numbering resumes in an existing
-dataset. A topology seed in the test split's range (sebvs/data/splits.py) is refused
+dataset, and so do the seed's episodes: a dataset holding M episodes gets episodes M..
+of the seed (the sim's ``first_episode``), so a resumed or extended recording never
+repeats a scene under a new number. A topology seed in the test split's range (sebvs/data/splits.py) is refused
 before anything starts: held-out episodes stay held out only if no recording ever makes
 them.
 
-Fan-out (``--workers N``, ``--ray [ADDRESS]``; docs/scale.md): the N episodes of the run
-are split into contiguous ranges [a, b), one per worker (sebvs/scale). A worker runs the
-topology with the sim's ``first_episode = a`` and ``episodes = b - a``, so episode k is
-seeded episode_seed(topology seed, k) and numbered k whatever the split, and its recorder
-writes into a staging directory of its own, ``<out>/.staging/<shard>/`` (same filesystem:
-moves are renames). The driver adopts each finished file as soon as it appears: it reads
-the file's ``sim_episode`` attribute (k), renames it to ``episode_<base + k>.h5`` in the
-dataset (base: the dataset's next number when the run began) and adds it to index.json
+Fan-out (``--workers N``, ``--ray [ADDRESS]``; docs/scale.md): the run's episodes
+[M, M + N) (M: the dataset's next number) are split into contiguous ranges [a, b), one
+per worker (sebvs/scale). A worker runs the topology with the sim's ``first_episode = a``
+and ``episodes = b - a``, so episode k is seeded episode_seed(topology seed, k) and
+numbered k whatever the split, and its recorder writes into a staging directory of its
+own, ``<out>/.staging/<shard>/`` (same filesystem: moves are renames). The driver adopts
+each finished file as soon as it appears: it reads the file's ``sim_episode`` attribute
+(k), renames it to ``episode_<base + k>.h5`` in the dataset (base 0 from this version
+on; a staging directory of an older driver names its own) and adds it to index.json
 (atomic rewrite, in number order). A worker that fails or is lost is run again for the
 episodes still missing, a bounded number of times. A driver that dies loses nothing
 finished: the next ``sebvs record`` into the dataset first adopts what the staging
@@ -125,6 +128,14 @@ def cmd_record(args) -> int:
     if (args.workers or 1) > 1 or args.ray is not None:
         return record_fanout(args, topo, name, out, overrides)
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
+    try:
+        # the dataset's episode N is episode N of the seed: a recording into a dataset
+        # that holds N episodes plays on from there, not episodes 0.. again (the same
+        # scenes under new numbers, which a train/validation split would then straddle)
+        topo = load_topology(args.topology,
+                             [*overrides, f"{first_episode_actor(topo)}.first_episode={first}"])
+    except LookupError:
+        pass                # no episode source with first_episode: nothing to continue
     echo = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
     sup = Supervisor(topo, runs_dir=args.runs_dir, echo=echo)
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -272,15 +283,19 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     topology = str(Path(args.topology).resolve())
     n = args.episodes
     parts = args.workers if args.workers else (os.cpu_count() or 1)
-    shards = [Shard("recording", a, b) for a, b in split_episodes(0, n, parts)]
+    # episodes [base, base + n) of the seed: the dataset's numbers, as one process plays them
+    shards = [Shard("recording", a, b) for a, b in split_episodes(base, base + n, parts)]
     bar = tqdm(total=n, unit="ep", desc="recording", disable=args.quiet, dynamic_ncols=True)
     done: set[int] = set()
 
     def task_of(shard: Shard) -> Task:
         stage = out / STAGING / f"{run_token}-{shard.first}-{shard.stop}-try{shard.attempt}"
         stage.mkdir(parents=True, exist_ok=True)
+        # shards cover [base, base + n) of the seed's episodes, so episode k is the
+        # dataset's number k (base 0 here; a shard.json of an older driver may say
+        # another base, which adopt_stage adds)
         (stage / SHARD_INFO).write_text(json.dumps(
-            {"base": base, "first": shard.first, "stop": shard.stop}))
+            {"base": 0, "first": shard.first, "stop": shard.stop}))
         if index.task is not None:
             # the worker's recorder then refuses a stream of another task, as it would in
             # the dataset itself
@@ -301,7 +316,7 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     def collect(shard: Shard, result: dict | None) -> list[int]:
         adopt(shard)
         shutil.rmtree(stages.pop(shard), ignore_errors=True)
-        return [k for k in range(shard.first, shard.stop) if base + k not in have]
+        return [k for k in range(shard.first, shard.stop) if k not in have]
 
     def poll() -> None:
         for shard in list(stages):
