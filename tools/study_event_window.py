@@ -23,8 +23,7 @@ success, mean over the training seeds, with a paired sign test (over episodes, s
 pooled) of each window against 0.1 s. Nothing is chosen here: the windows, seeds, recipe
 and test seed are fixed before the run.
 
-Every step is skipped when its output is complete, so an interrupted study resumes (an
-incomplete recording is recorded again whole).
+Every step is skipped when its output is complete, so an interrupted study resumes.
 Writes OUT/study.json, OUT/study.md and OUT/study.png.
 
     tools/study_event_window.py [--quick] [--out DIR] [--workers N] [...]
@@ -33,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import statistics
 import subprocess
 import sys
@@ -68,11 +66,9 @@ def episodes_in(dataset: Path) -> int:
 
 def record(args, window: float) -> Path:
     out = args.out / "data" / tag(window)
-    if episodes_in(out) < args.episodes:
-        # recorded again whole: a recording into an existing dataset would play episodes
-        # 0.. of the seed again under new numbers, not the missing ones
-        shutil.rmtree(out, ignore_errors=True)
-        sebvs("record", "topologies/nav_record.toml", "--episodes", str(args.episodes),
+    missing = args.episodes - episodes_in(out)
+    if missing > 0:     # a recording into the dataset plays on with the seed's episodes
+        sebvs("record", "topologies/nav_record.toml", "--episodes", str(missing),
               "--out", str(out), "--set", f"sim.episode_s={args.episode_s}",
               "--set", f"topology.seed={args.record_seed}",
               "--set", f"accumulator.window_s={window}", "--workers", str(args.workers),
