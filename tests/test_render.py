@@ -108,3 +108,15 @@ def test_a_view_draws_as_a_renderer_of_its_size_and_follows_the_model():
         assert small.model is indoor and big.shape == (160, 160, 3)
         with pytest.raises(ValueError, match="smaller than the 800x800 render"):
             r.view(800, 800)
+
+
+def test_rendering_after_close_is_a_clear_error():
+    _, model, data = posed("nav")
+    r = FrameRenderer(model, 64, 64)
+    small = r.view(32, 32)
+    r.update(data, "front")
+    r.close()
+    r.close()                                   # twice: nothing more to free
+    for renderer in (r, small):
+        with pytest.raises(RuntimeError, match="render after close"):
+            renderer.rgb()

@@ -88,6 +88,8 @@ class _Canvas:
 
     def draw(self, rect: mujoco.MjrRect, rgb: np.ndarray | None, depth: np.ndarray | None,
              segment: bool) -> None:
+        if self.ctx is None:
+            raise RuntimeError("render after close() (a view closes with its renderer)")
         self.gl.make_current()
         flags = self.scene.flags
         saved = flags.copy()
@@ -160,9 +162,8 @@ class FrameRenderer:
 
     # -- lifecycle ------------------------------------------------------------------
     def close(self) -> None:
-        if self._owner and self._canvas is not None:
+        if self._owner and self._canvas.ctx is not None:
             self._canvas.close()
-        self._canvas = None
 
     def __enter__(self) -> "FrameRenderer":
         return self
