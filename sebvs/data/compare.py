@@ -96,10 +96,11 @@ def compare_datasets(a: Path, b: Path, progress=lambda name: None) -> Comparison
     """Pair the indexed episodes of two datasets by file name and compare each pair."""
     files_a = [e["file"] for e in DatasetIndex(a).episodes()]
     files_b = [e["file"] for e in DatasetIndex(b).episodes()]
+    in_a, in_b = set(files_a), set(files_b)
     result = Comparison(Path(a), Path(b))
-    result.only_a = [f for f in files_a if f not in set(files_b)]
-    result.only_b = [f for f in files_b if f not in set(files_a)]
-    for name in (f for f in files_a if f in set(files_b)):
+    result.only_a = [f for f in files_a if f not in in_b]
+    result.only_b = [f for f in files_b if f not in in_a]
+    for name in (f for f in files_a if f in in_b):
         diffs = episode_differences(Path(a) / name, Path(b) / name)
         if diffs:
             result.different[name] = diffs
