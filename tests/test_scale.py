@@ -13,7 +13,7 @@ import pytest
 
 from sebvs.cli import main
 from sebvs.data.check import check_dataset
-from sebvs.data.compare import episode_differences
+from sebvs.data.compare import dataset_names, episode_differences
 from sebvs.data.index import DatasetIndex
 from sebvs.data.record import SHARD_INFO, STAGING, adopt_staged
 from sebvs.scale import RayMissing, Shard, ShardsLost, Task, fan_out, split_episodes
@@ -41,14 +41,7 @@ def assert_same_episode(a: Path, b: Path) -> None:
     (sebvs/data/compare.py: the hop latencies; tick and t_sim from the first frame)."""
     assert episode_differences(a, b) == []
     with h5py.File(a) as fa:
-        assert {"rgb", "events/frame", "action", "tick", "t_sim"} <= set(_names(fa))
-
-
-def _names(h5: h5py.File) -> list[str]:
-    names = []
-    h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset)
-                  else None)
-    return names
+        assert {"rgb", "events/frame", "action", "tick", "t_sim"} <= set(dataset_names(fa))
 
 
 def test_record_on_two_workers_gives_the_episode_files_of_one(tmp_path):

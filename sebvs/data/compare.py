@@ -28,7 +28,8 @@ RUN_RELATIVE = ("tick", "t_sim")
 RUN_RELATIVE_ATOL_S = 1e-9
 
 
-def _dataset_names(h5: h5py.File) -> list[str]:
+def dataset_names(h5: h5py.File) -> list[str]:
+    """Every dataset's path in an HDF5 file, sorted."""
     names: list[str] = []
     h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset)
                   else None)
@@ -40,7 +41,7 @@ def episode_differences(a: Path, b: Path) -> list[str]:
     docstring); empty when they are the same episode. One line per difference."""
     out: list[str] = []
     with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
-        na, nb = _dataset_names(fa), _dataset_names(fb)
+        na, nb = dataset_names(fa), dataset_names(fb)
         for name in sorted(set(na) ^ set(nb)):
             out.append(f"dataset {name}: only in {a if name in na else b}")
         for name in sorted(set(na) & set(nb)):

@@ -6,9 +6,9 @@ simulated seconds per wall second) from the recorder's ``stats`` on its control 
 The recorder ends the run after N finished episodes; numbering resumes in an existing
 dataset, and so do the seed's episodes: a dataset holding M episodes gets episodes M..
 of the seed (the sim's ``first_episode``), so a resumed or extended recording never
-repeats a scene under a new number. A topology seed in the test split's range (sebvs/data/splits.py) is refused
-before anything starts: held-out episodes stay held out only if no recording ever makes
-them.
+repeats a scene under a new number. A topology seed in the test split's range
+(sebvs/data/splits.py) is refused before anything starts: held-out episodes stay held
+out only if no recording ever makes them.
 
 Fan-out (``--workers N``, ``--ray [ADDRESS]``; docs/scale.md): the run's episodes
 [M, M + N) (M: the dataset's next number) are split into contiguous ranges [a, b), one
