@@ -4,7 +4,7 @@ Input   events  {"events": EVENT_DTYPE [N]} from the emulator; meta control mark
                 packet that ends at a control tick, event_sensor / frame give the geometry
 Output  frames  {"frame": [C, H, W]} at the RGB (frame) resolution for the window
                 [t - window_s, t]; uint8 counts (float32 for voxel); tick = the control tick;
-                meta: representation, window_s, event_scale / event_offset (sensor -> RGB)
+                meta: representation, bins, window_s, event_scale / event_offset (sensor -> RGB)
 """
 from __future__ import annotations
 
@@ -65,6 +65,7 @@ class Accumulator(Actor):
         await self.emit("frames", out, parent=msg,
                         meta={**meta, **acc.geometry.to_meta(),
                               "representation": acc.representation,
+                              "bins": 1 if acc.representation == "counts" else acc.bins,
                               "window_s": self.params.window_s})
 
     def stats(self) -> dict:

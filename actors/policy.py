@@ -1,7 +1,10 @@
 """The ERP policy actor: camera RGB and/or accumulated event frames in, an action out.
 
 Inputs  rgb     from the camera:       arrays["rgb"]   uint8 [H, W, 3], tick
-        events  from the accumulator:  arrays["frame"] uint8 [2, H, W], tick
+        events  from the accumulator:  arrays["frame"] uint8 [2K, H, W], tick; meta
+                representation, bins, window_s are checked against what the active
+                checkpoint was trained on (its "event_frames"): a difference is counted
+                (stats "event_frame_mismatch") and logged, the frame still used
         (samples with meta control=False, taken between control ticks, are ignored)
 Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 [6]} (arm),
         tick = the input tick, meta {"modality", "input_ticks", "inference_ms", ...}
@@ -48,6 +51,7 @@ class Policy(Actor):
         self.policies.warm_up()
         self.emitted = 0
         self.skipped_ticks = 0
+        self.event_frame_mismatch: dict[str, int] = {}
         self.swaps: list[dict] = []
         self.inference_ms: list[float] = []
         self.log.info("loaded %s (%s); active %s; inputs wired: %s",
@@ -72,7 +76,27 @@ class Policy(Actor):
         await self._receive("rgb", msg, msg.arrays["rgb"])
 
     async def on_events(self, msg: Message) -> None:
+        self._check_event_frame(msg.meta)
         await self._receive("events", msg, msg.arrays["frame"])
+
+    def _check_event_frame(self, meta: dict) -> None:
+        """Count frames made otherwise than the active checkpoint's training frames: a
+        policy trained on 0.4 s windows sees other inputs through a 0.1 s accumulator,
+        though the shapes agree."""
+        policy = self.policies.policies.get(self.params.modality)
+        trained = policy.config.get("event_frames") if policy is not None else None
+        if not isinstance(trained, dict):
+            return
+        for key in ("representation", "bins", "window_s"):
+            want, got = trained.get(key), meta.get(key)
+            if want is None or got is None or got == want:
+                continue
+            n = self.event_frame_mismatch.get(key, 0) + 1
+            self.event_frame_mismatch[key] = n
+            if n == 1:
+                self.log.warning("event frames have %s=%s, the %s checkpoint was trained on "
+                                 "%s=%s (counted in stats)", key, short_repr(got),
+                                 self.params.modality, key, short_repr(want))
 
     async def _receive(self, stream: str, msg: Message, array) -> None:
         if msg.tick is None:
@@ -134,6 +158,7 @@ class Policy(Actor):
         return {"modality": self.params.modality, "loaded": self.policies.modalities,
                 "emitted": self.emitted, "last_tick": self.sync.last_tick,
                 "skipped_ticks": self.skipped_ticks, "swaps": self.swaps,
+                "event_frame_mismatch": self.event_frame_mismatch,
                 "inference_ms": summarize(self.inference_ms, 1.0)}
 
 

@@ -3,9 +3,10 @@
 Inputs (connect what the topology has; `events` may be absent in RGB-only topologies):
   rgb      camera: arrays["rgb"] (H, W, 3) uint8, meta control (samples with control=False,
            between ticks, are skipped), truth (privileged ground truth, kept per frame)
-  events   accumulator: arrays["frame"] (2, H, W) counts; optional raw arrays x, y, t, p;
-           meta event_scale (or scale) / event_offset (or offset) / emulator (or params):
-           the event-to-RGB pixel mapping and emulator settings, stored as file attributes
+  events   accumulator: arrays["frame"] (2, H, W) counts or (2K, H, W) time bins; optional
+           raw arrays x, y, t, p; meta event_scale (or scale) / event_offset (or offset) /
+           emulator (or params) / representation / bins / window_s: the event-to-RGB pixel
+           mapping, emulator and accumulator settings, stored as file attributes
   raw      emulator (optional, used with raw_events = true): arrays["events"] structured
            (x, y, t, p) packets; the packets up to and including a control tick's packet
            are that tick's raw events (the accumulator's window ends there too)
@@ -39,7 +40,8 @@ STREAMS = ("rgb", "events", "raw", "action")
 # file attribute <- accumulator meta key (either spelling)
 EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params",
                "event_sensor": "sensor", "event_output": "output",
-               "event_representation": "representation", "event_window_s": "window_s"}
+               "event_representation": "representation", "event_window_s": "window_s",
+               "event_bins": "bins"}
 
 
 RAW_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])

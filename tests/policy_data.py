@@ -6,7 +6,8 @@ expert's action is a function of what the image shows, so a policy can learn it:
     pose = [x, y, 0.1, 0, 0, y - x] in normalised image units       (arm)
 or, with target="gain", from the square's brightness (see make_dataset).
 Event frames: ON counts where the square is now and was not, OFF where it was and is not,
-so an event-only policy can localise the square too.
+so an event-only policy can localise the square too; with event_bins K > 1 a histogram of
+K time bins per polarity (the ON counts in the newest bin, the OFF counts in the oldest).
 Written with sebvs/data's EpisodeWriter and DatasetIndex, as the recorder writes them.
 """
 from __future__ import annotations
@@ -53,7 +54,7 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, va
 
 def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, height: int = 32,
                  width: int = 32, seed: int = 0, task: str = "nav",
-                 target: str = "position") -> Path:
+                 target: str = "position", event_bins: int = 1) -> Path:
     """Write ``episodes`` episode files and index.json under ``root``.
 
     target "position": nav [v, w] from the square's centre (learnt only after a few hundred
@@ -76,9 +77,14 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
         else:
             cx, cy = centre[:, 0], centre[:, 1]
             targets = np.stack([cx, cy, np.full_like(cx, 0.1), 0 * cx, 0 * cx, cy - cx], axis=1)
+        if event_bins > 1:
+            hist = np.zeros((frames, 2 * event_bins, height, width), np.uint8)
+            hist[:, event_bins - 1], hist[:, event_bins] = events[:, 0], events[:, 1]
+            events = hist
+        attrs = {"seed": seed * 1000 + e, "scene": "synthetic", "event_window_s": 0.1,
+                 "event_representation": "counts" if event_bins == 1 else "histogram"}
         path = index.path_for(index.next_episode_number())
-        with EpisodeWriter(path, task, {"seed": seed * 1000 + e, "scene": "synthetic"},
-                           compression="none") as w:
+        with EpisodeWriter(path, task, attrs, compression="none") as w:
             for t in range(frames):
                 w.append(rgb=rgb[t], event_frame=events[t], t_sim=t / 30.0, tick=t,
                          **{"action" if task == "nav" else "pose": targets[t]})

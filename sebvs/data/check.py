@@ -1,7 +1,7 @@
 """``sebvs data check DIR``: verify a dataset against its index.
 
 For each indexed episode: the file exists, its sha256 and byte size match, it opens, its
-datasets have consistent lengths and shapes (rgb [T,H,W,3] uint8, events/frame [T,2,h,w],
+datasets have consistent lengths and shapes (rgb [T,H,W,3] uint8, events/frame [T,2K,h,w],
 target [T,2|6], t_sim/tick/latency [T], ticks increasing), T equals the index's frame
 count, and the required attributes are present. Also reported: ``*.partial`` files (lost
 in-progress episodes: never used), episode files that the index does not list, and an
@@ -80,8 +80,8 @@ def _check_contents(name: str, ep, entry: dict, task: str | None) -> list[str]:
                         f"[T, H, W, 3]")
     if ep.event_frame is not None:
         ev = ep.event_frame
-        if ev.ndim != 4 or ev.shape[0] != T or ev.shape[1] != 2:
-            problems.append(f"{name}: events/frame is {ev.shape}, expected [{T}, 2, h, w]")
+        if ev.ndim != 4 or ev.shape[0] != T or ev.shape[1] < 2 or ev.shape[1] % 2:
+            problems.append(f"{name}: events/frame is {ev.shape}, expected [{T}, 2K, h, w]")
     dim = TASK_TARGET[ep.task][1]
     if ep.target.shape != (T, dim):
         problems.append(f"{name}: {ep.target_key} is {ep.target.shape}, expected [{T}, {dim}]")

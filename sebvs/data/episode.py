@@ -3,7 +3,8 @@
 Layout of ``episode_NNNN.h5`` (T frames, one row per control tick):
 
     rgb            [T, H, W, 3]  uint8    camera image
-    events/frame   [T, 2, H, W]  uint8    ON/OFF event counts accumulated over the tick
+    events/frame   [T, 2K, H, W] uint8    ON/OFF event counts over the accumulator's window
+                                          (K = 1), or K time bins per polarity (histogram)
     events/x,y     [N]           uint16   raw events (optional), all frames concatenated
     events/t       [N]           int64    timestamps, ns
     events/p       [N]           int8     polarity +1/-1
@@ -184,6 +185,10 @@ class EpisodeWriter:
         self._big["rgb"][i] = rgb
         if ev is not None:
             event_frame = np.asarray(event_frame)
+            if event_frame.dtype.kind not in "ub" and event_frame.dtype.kind != "i":
+                # a voxel grid is signed and fractional: as uint8 it would be silently wrong
+                raise ValueError(f"event_frame must hold counts (integers), got "
+                                 f"{event_frame.dtype}: record 'counts' or 'histogram' frames")
             if event_frame.dtype != np.uint8:
                 event_frame = np.clip(event_frame, 0, 255).astype(np.uint8)
             ev[i] = event_frame

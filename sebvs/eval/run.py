@@ -38,6 +38,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ..data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS, SeedRange
+from ..policy.checkpoint import checkpoint_paths, read_config
 from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
@@ -282,7 +283,28 @@ class EvalPlan:
                 f'policy.modalities=["{run.modality}"]']
         if run.modality == "rgb":   # no events wired: emulator and accumulator are pruned
             sets.append('policy.inputs={rgb="camera/rgb"}')
+        else:
+            sets += self.event_frame_overrides(run.modality)
         return self.policy_topology, common + sets + self.extra
+
+    def event_frame_overrides(self, modality: str) -> list[str]:
+        """The accumulator made to give the event frames the checkpoint was trained on
+        (representation, time bins, window: its config's "event_frames", taken from the
+        training data). A checkpoint without them gets the topology's accumulator as written;
+        a --set of the user's comes later and wins."""
+        pt, _ = checkpoint_paths(self.checkpoints, self.task, modality)
+        try:
+            frames = read_config(pt).get("event_frames")
+        except (OSError, ValueError):
+            return []       # the policy actor names what is wrong with the checkpoint
+        if not isinstance(frames, dict) or frames.get("representation") not in (
+                "counts", "histogram"):
+            return []
+        sets = [f'accumulator.representation={json.dumps(frames.get("representation"))}',
+                f'accumulator.bins={int(frames.get("bins") or 1)}']
+        if isinstance(frames.get("window_s"), (int, float)):
+            sets.append(f'accumulator.window_s={float(frames["window_s"])}')
+        return sets
 
 
 def _read_episodes(path: Path, seed: int | None = None) -> list[dict]:

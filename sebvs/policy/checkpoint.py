@@ -11,7 +11,7 @@ import json
 import pickle
 from pathlib import Path
 
-from .inputs import MODALITY_INPUTS, Normalisation, channels, check_modality
+from .inputs import Normalisation, channel_names, channels, check_modality
 
 CONFIG_VERSION = 1
 
@@ -37,10 +37,9 @@ def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
 
 def model_config(task: str, modality: str, norm: Normalisation, stem: str = "patch") -> dict:
     """The part of a config that decides the architecture and its input."""
-    order = {"rgb": ["r", "g", "b"], "events": ["on", "off"]}
     return {"task": task, "modality": modality, "size": norm.size, "stem": stem,
-            "channels": channels(modality),
-            "channel_order": [c for s in MODALITY_INPUTS[modality] for c in order[s]],
+            "channels": channels(modality, norm.event_bins),
+            "channel_order": channel_names(modality, norm.event_bins),
             "normalisation": norm.to_dict()}
 
 
@@ -81,11 +80,12 @@ def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
                                   f"expected {want!r}")
     try:
         check_modality(cfg["modality"])
-        if cfg["channels"] != channels(cfg["modality"]):
-            raise CheckpointError(f"checkpoint {pt_path}: {cfg['channels']} channels do not "
-                                  f"match modality {cfg['modality']!r} "
-                                  f"({channels(cfg['modality'])})")
         norm = Normalisation.from_dict(cfg["normalisation"])
+        want = channels(cfg["modality"], norm.event_bins)
+        if cfg["channels"] != want:
+            raise CheckpointError(f"checkpoint {pt_path}: {cfg['channels']} channels do not "
+                                  f"match modality {cfg['modality']!r} with "
+                                  f"{norm.event_bins} event bin(s) ({want})")
         if norm.size != cfg["size"]:
             raise CheckpointError(f"checkpoint {pt_path}: normalisation size {norm.size} != "
                                   f"size {cfg['size']}")

@@ -1,7 +1,7 @@
 """Behaviour-cloning samples read lazily from recorded episodes.
 
 The files are sebvs/data's (``open_episode``, ``DatasetIndex``): one HDF5 per episode with
-``rgb`` [T, H, W, 3] uint8, ``events/frame`` [T, 2, H, W] uint8, ``action`` [T, 2] float32
+``rgb`` [T, H, W, 3] uint8, ``events/frame`` [T, 2K, H, W] uint8, ``action`` [T, 2] float32
 (nav) or ``pose`` [T, 6] float32 (arm), ``t_sim``, ``tick``; ``index.json`` in the dataset
 directory lists the episodes as {"file", "frames", "seed", ...}.
 
@@ -61,6 +61,32 @@ def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
     return h.hexdigest()
 
 
+def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
+    """What a dataset's event frames are, from its first episode: {"representation":
+    "counts" | "histogram", "bins": K time bins per polarity, "window_s": the accumulator's
+    window or None where the recording did not say}. Training takes K from here, and the
+    checkpoint keeps the whole so that an evaluation can set its accumulator the same way.
+    Voxel grids (signed, float) are refused: no model input is defined for them."""
+    path = Path(root) / episodes[0]["file"]
+    with open_episode(path) as ep:
+        if ep.event_frame is None:
+            raise ValueError(f"{path}: no events/frame")
+        planes = int(ep.event_frame.shape[1])
+        representation = ep.attrs.get("event_representation") or "counts"
+        window = ep.attrs.get("event_window_s")
+    if representation == "voxel":
+        raise ValueError(f"{path}: event frames are voxel grids; policies take 'counts' or "
+                         f"'histogram' frames (record with accumulator.representation="
+                         f"\"histogram\")")
+    if representation not in ("counts", "histogram") or planes % 2 or \
+            (representation == "counts" and planes != 2):
+        raise ValueError(f"{path}: event frames of {planes} planes, representation "
+                         f"{representation!r}: expected counts [2, H, W] or a histogram "
+                         f"[2K, H, W]")
+    return {"representation": representation, "bins": planes // 2,
+            "window_s": float(window) if isinstance(window, (int, float)) else None}
+
+
 def split_episodes(episodes: list[dict], val_fraction: float, seed: int
                    ) -> tuple[list[dict], list[dict]]:
     """Seeded split by episode (never by frame): frames of one episode are near-duplicates,
@@ -117,10 +143,16 @@ class EpisodeFrames:
             if ep.task != self.task:
                 ep.close()
                 raise ValueError(f"{ep.path}: episode of task {ep.task!r}, training {self.task!r}")
-            if "events" in MODALITY_INPUTS[self.modality] and ep.event_frame is None:
-                ep.close()
-                raise ValueError(f"{ep.path}: no events/frame, needed by modality "
-                                 f"{self.modality!r}")
+            if "events" in MODALITY_INPUTS[self.modality]:
+                planes = None if ep.event_frame is None else int(ep.event_frame.shape[1])
+                if planes != 2 * self.norm.event_bins:
+                    ep.close()
+                    raise ValueError(
+                        f"{ep.path}: no events/frame, needed by modality {self.modality!r}"
+                        if planes is None else
+                        f"{ep.path}: event frames of {planes} planes, the model takes "
+                        f"{2 * self.norm.event_bins} (event_bins {self.norm.event_bins}): "
+                        f"one event representation per dataset")
             self._handles[ei] = ep
         return ep
 

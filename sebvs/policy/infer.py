@@ -68,8 +68,9 @@ class PolicySet:
     def warm_up(self) -> None:
         """One inference per variant on zeros: first calls allocate, keep that off tick 0."""
         for m, p in self.policies.items():
-            s = p.norm.size
-            self.act(m, rgb=np.zeros((s, s, 3), np.uint8), events=np.zeros((2, s, s), np.uint8))
+            s, planes = p.norm.size, 2 * p.norm.event_bins
+            self.act(m, rgb=np.zeros((s, s, 3), np.uint8),
+                     events=np.zeros((planes, s, s), np.uint8))
 
     def act(self, modality: str, *, rgb: np.ndarray | None = None,
             events: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:

@@ -1,10 +1,12 @@
 """The one place that turns raw observations into model input; training and the actor share it.
 
     rgb     uint8 [H, W, 3]  -> float32 [3, S, S] in [0, 1]            (x / 255)
-    events  uint8 [2, H, W]  -> float32 [2, S, S] in [0, 1]            (min(n, clip) / clip)
-            channel 0 = ON counts, 1 = OFF counts, since the last accumulator flush
+    events  uint8 [2K, H, W] -> float32 [2K, S, S] in [0, 1]           (min(n, clip) / clip)
+            K = event_bins time bins per polarity over the accumulator's window: K = 1 is
+            the paper's counts (channel 0 ON, 1 OFF); K > 1 the accumulator's "histogram"
+            (ON bins oldest first, then OFF bins)
     model input for a modality = the per-modality tensors concatenated, rgb first:
-            rgb -> 3 ch, event -> 2 ch, rgb+event -> 5 ch
+            rgb -> 3 ch, event -> 2K ch, rgb+event -> 3 + 2K ch
 
 Resizing: when a recorded frame is not S x S it is resized with cv2.INTER_AREA (an area
 average: no aliasing on the way down, and for event counts it keeps the mean density).
@@ -26,7 +28,6 @@ import numpy as np
 MODALITIES = ("rgb", "event", "rgb+event")
 # which observation streams a modality reads, in channel order
 MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "events")}
-STREAM_CHANNELS = {"rgb": 3, "events": 2}
 
 
 # input sides by name: the CPU default (100 tokens) and the paper's (1600, for GPUs)
@@ -50,10 +51,21 @@ def parse_size(value: str | int) -> int:
     return size
 
 
-def channels(modality: str) -> int:
-    """Input channels of a modality's model: rgb 3, event 2, rgb+event 5."""
+def channels(modality: str, event_bins: int = 1) -> int:
+    """Input channels of a modality's model: rgb 3, event 2K, rgb+event 3 + 2K."""
     check_modality(modality)
-    return sum(STREAM_CHANNELS[s] for s in MODALITY_INPUTS[modality])
+    per_stream = {"rgb": 3, "events": 2 * event_bins}
+    return sum(per_stream[s] for s in MODALITY_INPUTS[modality])
+
+
+def channel_names(modality: str, event_bins: int = 1) -> list[str]:
+    """The model's input channels in order: r, g, b, then on, off (counts) or
+    on_t0 .. on_t{K-1}, off_t0 .. off_t{K-1} (time bins, oldest first)."""
+    check_modality(modality)
+    events = (["on", "off"] if event_bins == 1 else
+              [f"{p}_t{k}" for p in ("on", "off") for k in range(event_bins)])
+    names = {"rgb": ["r", "g", "b"], "events": events}
+    return [c for s in MODALITY_INPUTS[modality] for c in names[s]]
 
 
 def check_modality(modality: str) -> None:
@@ -66,15 +78,21 @@ class Normalisation:
     """How raw frames become model input; recorded in the checkpoint config."""
     size: int = 160                 # model input side S
     rgb_scale: float = 1.0 / 255.0  # rgb uint8 -> [0, 1]
-    event_clip: int = 8             # event counts above this saturate
+    event_clip: int = 8             # event counts above this saturate (per time bin)
     resize: str = "INTER_AREA"
+    event_bins: int = 1             # time bins per polarity: 1 = the paper's counts
+
+    def __post_init__(self):
+        if not isinstance(self.event_bins, int) or not 1 <= self.event_bins <= 64:
+            raise ValueError(f"event_bins must be an integer in 1..64, got {self.event_bins!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> "Normalisation":
-        return cls(**{k: d[k] for k in ("size", "rgb_scale", "event_clip", "resize") if k in d})
+        keys = ("size", "rgb_scale", "event_clip", "resize", "event_bins")
+        return cls(**{k: d[k] for k in keys if k in d})
 
 
 def _resize(img: np.ndarray, size: int) -> np.ndarray:
@@ -98,12 +116,15 @@ def rgb_input(rgb: np.ndarray, norm: Normalisation) -> np.ndarray:
 
 
 def event_input(events: np.ndarray, norm: Normalisation) -> np.ndarray:
-    """Event counts uint8 [2, H, W] (ON, OFF) -> float32 [2, S, S] in [0, 1]."""
-    if events.ndim != 3 or events.shape[0] != 2:
-        raise ValueError(f"events must be [2, H, W] (ON, OFF counts), got {list(events.shape)}")
+    """Event counts uint8 [2K, H, W] (ON bins, OFF bins) -> float32 [2K, S, S] in [0, 1]."""
+    planes = 2 * norm.event_bins
+    if events.ndim != 3 or events.shape[0] != planes:
+        what = ("[2, H, W] (ON, OFF counts)" if planes == 2 else
+                f"[{planes}, H, W] ({norm.event_bins} time bins per polarity)")
+        raise ValueError(f"events must be {what}, got {list(events.shape)}")
     table = _event_table(norm.event_clip)
-    out = np.empty((2, norm.size, norm.size), np.float32)
-    for c in range(2):
+    out = np.empty((planes, norm.size, norm.size), np.float32)
+    for c in range(planes):
         # per polarity on a contiguous 2-D plane: one table lookup clips, scales and widens
         # to float32 (4x faster than min + astype + multiply), then the area resize
         plane = np.ascontiguousarray(events[c])

@@ -22,8 +22,8 @@ from pathlib import Path
 
 from .checkpoint import model_config, save_checkpoint
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, dataset_hash,
-                      load_index, split_episodes)
-from .inputs import MODALITIES, Normalisation, channels, check_modality
+                      event_frames_of, load_index, split_episodes)
+from .inputs import MODALITIES, MODALITY_INPUTS, Normalisation, channels, check_modality
 
 
 @dataclass
@@ -109,6 +109,11 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     check_modality(modality)
     data, out = Path(data), Path(out)
     episodes = load_index(data, s.task)
+    event_frames = None
+    if "events" in MODALITY_INPUTS[modality]:
+        # the recording decides the event input (counts or K time bins); the model follows
+        event_frames = event_frames_of(data, episodes)
+        s = replace(s, norm=replace(s.norm, event_bins=event_frames["bins"]))
     train_eps, val_eps = split_episodes(episodes, s.val_fraction, s.seed)
     train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
     val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
@@ -125,7 +130,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     torch.use_deterministic_algorithms(True, warn_only=s.device != "cpu")
     try:
         _seed_everything(s.seed)
-        model = ERP(s.task, channels(modality), s.norm.size, stem=s.stem)
+        model = ERP(s.task, channels(modality, s.norm.event_bins), s.norm.size, stem=s.stem)
         target_stats = None
         if s.task == "arm":
             target_stats = pose_stats(train_set.targets())
@@ -184,6 +189,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     config = {**model_config(s.task, modality, s.norm, s.stem),
               "parameters": count_parameters(model),
               **({"target_stats": target_stats} if target_stats else {}),
+              **({"event_frames": event_frames} if event_frames else {}),
               "dataset": {"path": str(data), "hash": dataset_hash(data, episodes),
                           "train_episodes": [e["file"] for e in train_eps],
                           "val_episodes": [e["file"] for e in val_eps],
