@@ -229,6 +229,32 @@ def test_each_local_worker_is_told_its_share_of_the_cpus(monkeypatch, workers, s
     assert shares == [share] * workers
 
 
+_DRIVER_STATE = {"mark": None}      # set in the driver: a forked worker inherits it
+
+
+def _report_driver_state(task: _Probe) -> dict:
+    return {"label": task.label, "code": 0, "failure": None, "mark": _DRIVER_STATE["mark"]}
+
+
+@pytest.mark.parametrize("start, inherited", [("spawn", None), ("fork", "set")])
+def test_forked_workers_inherit_the_driver_s_state_and_spawned_ones_do_not(
+        monkeypatch, start, inherited):
+    """Topology runs fork their workers (they then skip re-importing the actor classes the
+    driver's topology check imported); training sweeps spawn them."""
+    monkeypatch.setitem(_DRIVER_STATE, "mark", "set")
+    marks = []
+
+    def collect(shard, result):
+        marks.append(result["mark"])
+        return []
+
+    fan_out([Shard("job", 0, 1)], lambda s: _Probe(str(s)), collect, worker=_report_driver_state,
+            echo=lambda text: None, start=start)
+    assert marks == [inherited]
+    with pytest.raises(ValueError, match="start must be"):
+        fan_out([Shard("job", 0, 1)], lambda s: _Probe(str(s)), collect, start="thread")
+
+
 def test_a_recording_into_a_dataset_plays_on_with_the_seeds_episodes(tmp_path):
     """Two episodes, then one, then two more on two workers, into the same dataset: it is
     the five-episode recording made at once, not episodes 0-1 again and again."""

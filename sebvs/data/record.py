@@ -332,7 +332,7 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     try:
         fan_out(shards, task_of, collect, workers=args.workers, ray=args.ray,
                 max_attempts=getattr(args, "max_attempts", 3), on_poll=poll,
-                echo=lambda text: tqdm.write(text, file=sys.stderr))
+                echo=lambda text: tqdm.write(text, file=sys.stderr), start="fork")
     except (ShardsLost, RayMissing) as exc:
         print(f"sebvs record: {exc}", file=sys.stderr)
         code = 1

@@ -439,7 +439,7 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
     try:
         fan_out(shards, task_of, collect, workers=plan.workers, ray=plan.ray,
                 max_attempts=plan.max_attempts, on_poll=progress,
-                echo=lambda text: tqdm.write(text))
+                echo=lambda text: tqdm.write(text), start="fork")
     except (ShardsLost, RayMissing) as exc:
         raise RunFailed(str(exc)) from None
     finally:

@@ -20,9 +20,15 @@ whichever worker plays it (actors/sim.py `first_episode`), so any worker count g
 same episodes.
 
 Backends:
-  local  `workers` spawned processes (multiprocessing "spawn": nothing of the driver's
-         sockets or threads is inherited). A worker that dies without a result is lost;
-         a worker whose driver died stops its run (it watches its parent pid).
+  local  `workers` worker processes. Spawned by default (multiprocessing "spawn": a fresh
+         interpreter, nothing of the driver's inherited). Topology runs ask for "fork"
+         (`start`) on Linux: the driver has imported the actor classes to check the
+         topology, and a forked worker skips importing them again (about 0.4 s of a
+         worker's start, on the path to its first episode). The driver holds no ZeroMQ
+         context or GL context by then, and the child touches nothing of its other thread
+         (tqdm's monitor). Training sweeps stay spawned: torch's thread pools do not
+         survive a fork. A worker that dies without a result is lost; a worker whose
+         driver died stops its run (it watches its parent pid).
          With `cpu_sets`, each worker process pins itself to one of them (its slot's),
          so N workers with T threads each do not compete for the same cores.
   ray    Ray tasks on the cluster at `ray` (or a local one started for the call, when
@@ -172,7 +178,7 @@ def _shared_cpus(worker: Callable[[Any], dict], task: Any, cpus: int) -> dict:
 
 def _local_worker(worker: Callable[[Any], dict], task: Any, conn,
                   cpus: tuple[int, ...] | None, share: int) -> None:
-    """Entry of a spawned worker process: pin it to `cpus` (before torch or anything else
+    """Entry of a worker process: pin it to `cpus` (before torch or anything else
     starts threads, which inherit the mask), run the task with `share` CPUs to count on,
     send its result (or the error)."""
     try:
@@ -196,7 +202,7 @@ def fan_out(shards: list[Shard], task_of: Callable[[Shard], Any],
             echo: Callable[[str], None] = lambda text: print(text, file=sys.stderr),
             worker: Callable[[Any], dict] = run_task,
             cpu_sets: list[tuple[int, ...]] | None = None,
-            ray_resources: dict | None = None) -> None:
+            ray_resources: dict | None = None, start: str = "spawn") -> None:
     """Run every shard; retry the episodes `collect` reports missing; raise ShardsLost.
 
     `collect(shard, result)` runs in the driver after each shard's worker ended: result
@@ -207,16 +213,18 @@ def fan_out(shards: list[Shard], task_of: Callable[[Shard], Any],
     a local Ray, or a cluster address. `on_poll` is called every POLL_S (progress).
 
     `worker(task)` is what runs a shard, in the worker process or Ray task; it must be a
-    module-level function (workers are spawned, Ray pickles it by reference), and a local
+    module-level function (spawned workers import it, Ray pickles it by reference), and a local
     worker's task a dataclass with a `parent_pid` field, which the pool sets to its own
     pid so the worker can stop when the driver is gone. `cpu_sets` (local pool only, see
     `disjoint_cpu_sets()`): one per worker slot, each worker pinned to its slot's CPUs.
-    `ray_resources`: what each Ray task asks for (default {"num_cpus": 1}).
+    `ray_resources`: what each Ray task asks for (default {"num_cpus": 1}). `start`: how
+    the local pool starts a worker, "spawn" or "fork" (where the platform forks safely,
+    Linux; spawn elsewhere); see the module's docstring.
     """
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be at least 1, got {max_attempts}")
     backend = (_RayBackend(ray, workers, worker, ray_resources) if ray is not None else
-               _LocalBackend(workers or 1, worker, cpu_sets))
+               _LocalBackend(workers or 1, worker, cpu_sets, start))
     queue: deque[Shard] = deque(shards)
     lost: dict = {}
     try:
@@ -269,13 +277,17 @@ def _ranges(ks: list[int]) -> str:
 
 
 class _LocalBackend:
-    """Spawned worker processes, one per shard, at most `workers` alive at once; with
-    `cpu_sets`, the worker of slot i (a slot is free again when its worker ends) pinned to
-    cpu_sets[i]."""
+    """Worker processes (spawned or forked), one per shard, at most `workers` alive at
+    once; with `cpu_sets`, the worker of slot i (a slot is free again when its worker ends)
+    pinned to cpu_sets[i]."""
 
     def __init__(self, workers: int, worker: Callable[[Any], dict] = run_task,
-                 cpu_sets: list[tuple[int, ...]] | None = None):
+                 cpu_sets: list[tuple[int, ...]] | None = None, start: str = "spawn"):
         import multiprocessing
+        if start not in ("spawn", "fork"):
+            raise ValueError(f"start must be 'spawn' or 'fork', got {start!r}")
+        if start == "fork" and not sys.platform.startswith("linux"):
+            start = "spawn"     # macOS: system frameworks are not fork-safe
         if workers < 1:
             raise ValueError(f"--workers must be at least 1, got {workers}")
         if cpu_sets is not None and len(cpu_sets) < workers:
@@ -284,7 +296,7 @@ class _LocalBackend:
         self.worker = worker
         self.cpu_sets = cpu_sets
         self.share = cpu_share(workers)
-        self.ctx = multiprocessing.get_context("spawn")
+        self.ctx = multiprocessing.get_context(start)
         self.procs: dict = {}       # sentinel -> (process, receiving end, shard, slot)
 
     def running(self) -> bool:
