@@ -2,9 +2,9 @@
 
 Inputs  rgb     from the camera:       arrays["rgb"]   uint8 [H, W, 3], tick
         events  from the accumulator:  arrays["frame"] uint8 [2K, H, W], tick; meta
-                representation, bins, window_s are checked against what the active
-                checkpoint was trained on (its "event_frames"): a difference is counted
-                (stats "event_frame_mismatch") and logged, the frame still used
+                representation, bins, window_s and event_sensor are checked against what
+                the active checkpoint was trained on (its "event_frames"): a difference is
+                counted (stats "event_frame_mismatch") and logged, the frame still used
         (samples with meta control=False, taken between control ticks, are ignored)
 Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 [6]} (arm),
         tick = the input tick, meta {"modality", "input_ticks", "inference_ms", ...}
@@ -23,6 +23,9 @@ from sebvs.runtime.params import short_repr
 from sebvs.runtime.stats import summarize
 
 INFERENCE_WINDOW = 2000   # latencies kept for stats()
+# a checkpoint's event_frames key -> the accumulator's meta key for the same thing
+EVENT_FRAME_META = {"representation": "representation", "bins": "bins",
+                    "window_s": "window_s", "sensor": "event_sensor"}
 
 
 class Policy(Actor):
@@ -87,8 +90,10 @@ class Policy(Actor):
         trained = policy.config.get("event_frames") if policy is not None else None
         if not isinstance(trained, dict):
             return
-        for key in ("representation", "bins", "window_s"):
-            want, got = trained.get(key), meta.get(key)
+        for key, meta_key in EVENT_FRAME_META.items():
+            want, got = trained.get(key), meta.get(meta_key)
+            if isinstance(got, (list, tuple)):
+                got = list(got)
             if want is None or got is None or got == want:
                 continue
             n = self.event_frame_mismatch.get(key, 0) + 1

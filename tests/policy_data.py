@@ -82,7 +82,8 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
             hist[:, event_bins - 1], hist[:, event_bins] = events[:, 0], events[:, 1]
             events = hist
         attrs = {"seed": seed * 1000 + e, "scene": "synthetic", "event_window_s": 0.1,
-                 "event_representation": "counts" if event_bins == 1 else "histogram"}
+                 "event_representation": "counts" if event_bins == 1 else "histogram",
+                 "event_sensor": [width // 2, height // 2]}   # frames: the sensor upsampled
         path = index.path_for(index.next_episode_number())
         with EpisodeWriter(path, task, attrs, compression="none") as w:
             for t in range(frames):

@@ -54,12 +54,13 @@ def test_histogram_frames_become_per_bin_input_planes():
 def test_training_takes_the_bins_from_the_recording(tmp_path):
     data = make_dataset(tmp_path / "data", episodes=4, frames=8, event_bins=3)
     assert event_frames_of(data, load_index(data)) == {
-        "representation": "histogram", "bins": 3, "window_s": 0.1}
+        "representation": "histogram", "bins": 3, "window_s": 0.1, "sensor": [16, 16],
+        "output": [32, 32]}
     res = train(data, tmp_path / "ck", "nav", ["event"], epochs=1, batch=4,
                 norm=Normalisation(size=32), **QUIET)["event"]
     assert res["channels"] == 6 and res["normalisation"]["event_bins"] == 3
     assert res["channel_order"][:3] == ["on_t0", "on_t1", "on_t2"]
-    assert res["event_frames"] == {"representation": "histogram", "bins": 3, "window_s": 0.1}
+    assert res["event_frames"]["bins"] == 3 and res["event_frames"]["window_s"] == 0.1
     model, cfg, norm = load_checkpoint(tmp_path / "ck" / "nav-event.pt")
     assert norm.event_bins == 3
     policies = PolicySet({"event": tmp_path / "ck" / "nav-event.pt"})
@@ -97,15 +98,16 @@ def test_eval_sets_the_accumulator_from_the_checkpoint(tmp_path):
     ck = tmp_path / "ck"
     ck.mkdir()
     cfg = {"task": "nav", "modality": "event",
-           "event_frames": {"representation": "histogram", "bins": 4, "window_s": 0.4}}
+           "event_frames": {"representation": "histogram", "bins": 4, "window_s": 0.4,
+                            "sensor": [160, 160], "output": [160, 160]}}
     (ck / "nav-event.json").write_text(json.dumps(cfg))
     plan = EvalPlan(task="nav", modalities=["event"], conditions=["nominal"], episodes=1,
                     out=tmp_path / "out", checkpoints=str(ck),
                     extra=["accumulator.window_s=0.2"])
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))
     mine = ['accumulator.representation="histogram"', "accumulator.bins=4",
-            "accumulator.window_s=0.4"]
-    assert sets[-4:] == mine + ["accumulator.window_s=0.2"]   # the user's --set comes last
+            "accumulator.window_s=0.4", "camera.luma_scale=1.0"]   # a full-size sensor
+    assert sets[-5:] == mine + ["accumulator.window_s=0.2"]   # the user's --set comes last
     # an older checkpoint (no event_frames) leaves the topology's accumulator as written
     (ck / "nav-event.json").write_text(json.dumps({"task": "nav", "modality": "event"}))
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))

@@ -33,7 +33,11 @@ def test_variants_parse_and_keep_the_window_study_s_names(tool):
     assert counts.accumulator_sets() == ["--set", "accumulator.window_s=0.1"]
     assert bins.accumulator_sets()[2:] == ["--set", 'accumulator.representation="histogram"',
                                            "--set", "accumulator.bins=4"]
-    for bad in ("x4", "0.1x", "0.1x0", "-1", "fast"):
+    full = tool.Variant.parse("0.4x4@1")
+    assert (full.sensor, full.tag, full.label) == (1.0, "w0.4_h4_s1", "0.4x4@1")
+    assert full.accumulator_sets()[-2:] == ["--set", "camera.luma_scale=1.0"]
+    assert full.description == "4 bins, 0.4 s, sensor x1"
+    for bad in ("x4", "0.1x", "0.1x0", "-1", "fast", "0.1@", "0.1@2"):
         with pytest.raises(ValueError, match="variant"):
             tool.Variant.parse(bad)
 

@@ -4,14 +4,17 @@
 At each control tick the accumulator turns the last `window_s` seconds of events into the
 frame a policy sees: ON/OFF counts (the paper's, and the shipped input: 0.1 s, one control
 period), or a histogram of K time bins per polarity, which keeps when in the window an
-event fired. A variant is one such input, written WINDOW (counts) or WINDOWxK (K bins):
-0.1, 0.4, 0.1x4. This study changes the input and keeps everything else:
+event fired. The emulator's sensor is rendered at half the RGB frame's size (80 px for
+160) and its events fill 2 x 2 blocks of the frame. A variant is one such input, written
+WINDOW[xK][@S]: counts or K bins over WINDOW seconds, from a sensor S times the frame's
+size (default 0.5): 0.1, 0.4, 0.1x4, 0.1@1. This study changes the input and keeps
+everything else:
 
 1. record  the same randomised nav episodes once per variant (`sebvs record
            topologies/nav_record.toml --set accumulator.window_s=W [--set
-           accumulator.representation="histogram" --set accumulator.bins=K]`, one
-           recording seed): the scenes, the expert's commands and the RGB are the same in
-           every dataset, only the event frames differ;
+           accumulator.representation="histogram" --set accumulator.bins=K] [--set
+           camera.luma_scale=S]`, one recording seed): the scenes, the expert's commands
+           and the RGB are the same in every dataset, only the event frames differ;
 2. train   event-only policies on each, one recipe (`sebvs train-sweep`, the grid below:
            conv stem, lr 5e-4, a reduced budget of 8,000 strided frames and 5 epochs,
            event counts clipped at 8 per plane, training seeds 0 and 1); the model's input
@@ -58,46 +61,60 @@ METRICS = (("success", "paper rate"), ("strict_success", "strict rate"),
            ("episode_success", "episode success"))
 
 
+SENSOR_SCALE = 0.5      # the topologies' camera.luma_scale: an 80 px sensor for 160 px RGB
+
+
 @dataclass(frozen=True)
 class Variant:
-    """One event input: the accumulator's window and its time bins (1: plain counts)."""
+    """One event input: the accumulator's window, its time bins (1: plain counts) and the
+    emulator's sensor size as a fraction of the RGB frame (camera.luma_scale)."""
     window: float
     bins: int = 1
+    sensor: float = SENSOR_SCALE
 
     @classmethod
     def parse(cls, text: str) -> "Variant":
-        """"0.1" (counts over 0.1 s) or "0.1x4" (4 time bins per polarity over 0.1 s)."""
-        window, sep, bins = text.strip().partition("x")
+        """WINDOW[xBINS][@SENSOR]: "0.1" (counts over 0.1 s), "0.1x4" (4 time bins per
+        polarity), "0.1@1" (counts from a sensor of the RGB frame's size)."""
+        head, at, sensor = text.strip().partition("@")
+        window, sep, bins = head.partition("x")
         try:
-            v = cls(float(window), int(bins) if sep else 1)
+            v = cls(float(window), int(bins) if sep else 1,
+                    float(sensor) if at else SENSOR_SCALE)
         except ValueError:
-            raise ValueError(f"variant {text!r} is not WINDOW or WINDOWxBINS "
-                             f"(e.g. 0.1, 0.1x4)") from None
-        if not v.window > 0 or not 1 <= v.bins <= 64:
-            raise ValueError(f"variant {text!r}: the window must be > 0 s and the bins "
-                             f"in 1..64")
+            raise ValueError(f"variant {text!r} is not WINDOW[xBINS][@SENSOR] "
+                             f"(e.g. 0.1, 0.1x4, 0.1@1)") from None
+        if not v.window > 0 or not 1 <= v.bins <= 64 or not 0 < v.sensor <= 1:
+            raise ValueError(f"variant {text!r}: the window must be > 0 s, the bins in "
+                             f"1..64 and the sensor scale in (0, 1]")
         return v
 
     @property
     def label(self) -> str:
-        return f"{self.window:g}" if self.bins == 1 else f"{self.window:g}x{self.bins}"
+        text = f"{self.window:g}" + ("" if self.bins == 1 else f"x{self.bins}")
+        return text + ("" if self.sensor == SENSOR_SCALE else f"@{self.sensor:g}")
 
     @property
     def tag(self) -> str:
         """Directory name; counts keep the window study's names (w0.1), so its outputs
         are found again."""
-        return f"w{self.window:g}" + ("" if self.bins == 1 else f"_h{self.bins}")
+        return (f"w{self.window:g}" + ("" if self.bins == 1 else f"_h{self.bins}")
+                + ("" if self.sensor == SENSOR_SCALE else f"_s{self.sensor:g}"))
 
     @property
     def description(self) -> str:
-        return (f"counts, {self.window:g} s" if self.bins == 1 else
+        text = (f"counts, {self.window:g} s" if self.bins == 1 else
                 f"{self.bins} bins, {self.window:g} s")
+        return text + ("" if self.sensor == SENSOR_SCALE else f", sensor x{self.sensor:g}")
 
     def accumulator_sets(self) -> list[str]:
+        """The --set options that make this input (recording and evaluation alike)."""
         sets = ["--set", f"accumulator.window_s={self.window}"]
         if self.bins > 1:
             sets += ["--set", 'accumulator.representation="histogram"',
                      "--set", f"accumulator.bins={self.bins}"]
+        if self.sensor != SENSOR_SCALE:
+            sets += ["--set", f"camera.luma_scale={self.sensor}"]
         return sets
 
 

@@ -288,10 +288,10 @@ class EvalPlan:
         return self.policy_topology, common + sets + self.extra
 
     def event_frame_overrides(self, modality: str) -> list[str]:
-        """The accumulator made to give the event frames the checkpoint was trained on
-        (representation, time bins, window: its config's "event_frames", taken from the
-        training data). A checkpoint without them gets the topology's accumulator as written;
-        a --set of the user's comes later and wins."""
+        """The camera and accumulator made to give the event frames the checkpoint was
+        trained on (representation, time bins, window, sensor size: its config's
+        "event_frames", taken from the training data). A checkpoint without them gets the
+        topology as written; a --set of the user's comes later and wins."""
         pt, _ = checkpoint_paths(self.checkpoints, self.task, modality)
         try:
             frames = read_config(pt).get("event_frames")
@@ -304,6 +304,11 @@ class EvalPlan:
                 f'accumulator.bins={int(frames.get("bins") or 1)}']
         if isinstance(frames.get("window_s"), (int, float)):
             sets.append(f'accumulator.window_s={float(frames["window_s"])}')
+        sensor, output = frames.get("sensor"), frames.get("output")
+        config = self.policy_sim().get("config", {})
+        if sensor and output and list(output) == [config.get("width"), config.get("height")]:
+            # the camera renders the emulator's luma at luma_scale x the RGB frame
+            sets.append(f"camera.luma_scale={sensor[0] / output[0]}")
         return sets
 
 

@@ -64,16 +64,19 @@ def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
 def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
     """What a dataset's event frames are, from its first episode: {"representation":
     "counts" | "histogram", "bins": K time bins per polarity, "window_s": the accumulator's
-    window or None where the recording did not say}. Training takes K from here, and the
-    checkpoint keeps the whole so that an evaluation can set its accumulator the same way.
+    window, "sensor": the emulator's [w, h], "output": the frames' [w, h]} (window and
+    sensor None where the recording did not say). Training takes K from here, and the
+    checkpoint keeps the whole so that an evaluation can make its event frames the same way.
     Voxel grids (signed, float) are refused: no model input is defined for them."""
     path = Path(root) / episodes[0]["file"]
     with open_episode(path) as ep:
         if ep.event_frame is None:
             raise ValueError(f"{path}: no events/frame")
         planes = int(ep.event_frame.shape[1])
+        planes_size = (int(ep.event_frame.shape[3]), int(ep.event_frame.shape[2]))  # (w, h)
         representation = ep.attrs.get("event_representation") or "counts"
         window = ep.attrs.get("event_window_s")
+        sensor = ep.attrs.get("event_sensor")
     if representation == "voxel":
         raise ValueError(f"{path}: event frames are voxel grids; policies take 'counts' or "
                          f"'histogram' frames (record with accumulator.representation="
@@ -84,7 +87,14 @@ def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
                          f"{representation!r}: expected counts [2, H, W] or a histogram "
                          f"[2K, H, W]")
     return {"representation": representation, "bins": planes // 2,
-            "window_s": float(window) if isinstance(window, (int, float)) else None}
+            "window_s": float(window) if isinstance(window, (int, float)) else None,
+            "sensor": [int(v) for v in sensor] if _is_size(sensor) else None,
+            "output": [int(v) for v in planes_size] if _is_size(planes_size) else None}
+
+
+def _is_size(value) -> bool:
+    return (isinstance(value, (list, tuple)) and len(value) == 2
+            and all(isinstance(v, (int, float)) and v > 0 for v in value))
 
 
 def split_episodes(episodes: list[dict], val_fraction: float, seed: int
