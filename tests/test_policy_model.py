@@ -64,6 +64,52 @@ def test_conv_stem_gives_the_patch_grid_of_tokens():
         ERP("arm", 5, 144, patch=12, stem="conv")
 
 
+def test_gated_stem_adds_event_tokens_through_its_gate():
+    torch.manual_seed(0)
+    m = ERP("nav", 7, 64, stem="gated").eval()              # rgb + 2 x 2 time bins
+    stem = m.embed
+    x = torch.rand(2, 7, 64, 64)
+    rgb, events, gate = stem.gates(x)
+    assert rgb.shape == events.shape == gate.shape == (2, 16, 64)
+    assert torch.allclose(stem(x), rgb + gate * events)
+    assert 0 < gate.min() and gate.max() < 1
+    # the rgb planes reach only the rgb stem, the event planes only the event stem
+    x_rgb, x_evt = x.clone(), x.clone()
+    x_rgb[:, :3] += 1.0
+    x_evt[:, 3:] += 1.0
+    assert torch.equal(stem.gates(x_rgb)[1], events) and not torch.equal(stem.gates(x_rgb)[0], rgb)
+    assert torch.equal(stem.gates(x_evt)[0], rgb) and not torch.equal(stem.gates(x_evt)[1], events)
+    # a gate held shut leaves the rgb tokens alone: the events no longer change the action
+    with torch.no_grad():
+        stem.gate.bias.fill_(-1e4)
+    assert torch.equal(stem(x), rgb) and torch.equal(m(x_evt), m(x))
+    with torch.no_grad():
+        stem.gate.bias.zero_()
+    assert not torch.equal(m(x_evt), m(x))
+    # both stems and the gate learn
+    m.train()
+    m.predict_loss_space(x).sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0
+               for p in (stem.rgb.net[0].weight, stem.events.net[0].weight, stem.gate.weight))
+
+
+@pytest.mark.parametrize("ch", [2, 3, 4])
+def test_gated_stem_needs_rgb_and_event_planes(ch):
+    with pytest.raises(ValueError, match="gated stem fuses 3 rgb planes with 2K event planes"):
+        ERP("nav", ch, 64, stem="gated")
+
+
+def test_gated_stem_checkpoint_round_trip(tmp_path):
+    torch.manual_seed(0)
+    m = ERP("nav", 5, 32, stem="gated").eval()
+    pt = save_checkpoint(m, model_config("nav", "rgb+event", Normalisation(size=32), "gated"),
+                         tmp_path)
+    model, cfg, _ = load_checkpoint(pt)
+    assert cfg["stem"] == "gated" and isinstance(model.embed, type(m.embed))
+    x = torch.rand(2, 5, 32, 32)
+    assert torch.equal(model(x), m(x))
+
+
 def test_conv_stem_checkpoint_round_trip_and_old_configs(tmp_path):
     norm = Normalisation(size=32)
     torch.manual_seed(0)

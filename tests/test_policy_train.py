@@ -53,6 +53,20 @@ def test_same_seed_same_weights(gain_data, tmp_path):
     assert not all(torch.equal(a[k], c[k]) for k in a)
 
 
+def test_gated_stem_trains_rgb_event_and_refuses_other_modalities(gain_data, tmp_path):
+    kw = dict(epochs=1, batch=8, max_frames=32, norm=Normalisation(size=32), stem="gated",
+              **QUIET)
+    cfg = train(gain_data, tmp_path, "nav", ["rgb+event"], **kw)["rgb+event"]
+    assert cfg["stem"] == "gated" and math.isfinite(cfg["training"]["best_val_loss"])
+    # refused before anything trains: --modality all would otherwise leave rgb unfinished
+    with pytest.raises(ValueError, match=r"gated stem fuses rgb and event planes: it needs "
+                                         r"modality rgb\+event, not rgb"):
+        train(gain_data, tmp_path / "all", "nav", ["rgb", "event", "rgb+event"], **kw)
+    assert not (tmp_path / "all").exists()
+    assert main(["train", "--task", "nav", "--modality", "event", "--stem", "gated",
+                 "--data", str(gain_data), "--out", str(tmp_path / "cli")]) == 2
+
+
 def test_split_is_by_episode_and_seeded(tmp_path):
     eps = [{"file": f"e{i}.h5", "frames": 10} for i in range(10)]
     tr, va = split_episodes(eps, 0.2, seed=1)

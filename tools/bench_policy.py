@@ -8,7 +8,8 @@ JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
 Inference is what the policy actor does per tick: model.eval(), torch.inference_mode(),
 batch 1, the nav head (the arm head adds two small linear layers). Input preparation
 (inputs.py: resize + scale from a 640x640 frame) is timed separately as `prep_ms`.
-Both token embeddings are timed (--stems): the paper's patch projection and ConvStem.
+The token embeddings named by --stems are timed: the paper's patch projection, ConvStem
+and GatedFusionStem (rgb+event only: it has no other modality).
 Training is one Adam step (forward, MSE, backward, update) on random batches.
 """
 from __future__ import annotations
@@ -29,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sebvs.policy.inputs import MODALITIES, Normalisation, channels, model_input  # noqa: E402
 from sebvs.policy.model import ERP, count_parameters  # noqa: E402
+from sebvs.policy.train import check_stem  # noqa: E402
 
 
 def _timed(fn, budget_s: float, min_iter: int, max_iter: int, warm: int = 2) -> np.ndarray:
@@ -42,6 +44,14 @@ def _timed(fn, budget_s: float, min_iter: int, max_iter: int, warm: int = 2) -> 
         fn()
         out.append((time.perf_counter() - t0) * 1e3)
     return np.asarray(out)
+
+
+def stem_fits(stem: str, modality: str) -> bool:
+    try:
+        check_stem(stem, modality)
+    except ValueError:
+        return False
+    return True
 
 
 def bench_inference(modality: str, size: int, threads: int, budget_s: float,
@@ -96,8 +106,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--sizes", default="160,320,640")
     ap.add_argument("--threads", default="1,2")
-    ap.add_argument("--stems", default="patch,conv",
-                    help="token embeddings to time: patch (the paper's), conv (ConvStem)")
+    ap.add_argument("--stems", default="patch,conv,gated",
+                    help="token embeddings to time: patch (the paper's), conv (ConvStem), "
+                         "gated (GatedFusionStem, rgb+event only)")
     args = ap.parse_args(argv)
     stems = args.stems.split(",")
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -109,6 +120,8 @@ def main(argv=None) -> int:
     for size in sizes:
         for t in threads:
             for stem, m in itertools.product(stems, MODALITIES):
+                if not stem_fits(stem, m):
+                    continue
                 r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5),
                                     min_iter=5 if args.quick and size > 320 else 10, stem=stem)
                 inference.append(r)

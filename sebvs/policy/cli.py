@@ -82,10 +82,11 @@ def register(subparsers) -> None:
     t.add_argument("--size", type=_size, default=160,
                    help="input side in px, or a preset: cpu=160 (100 tokens), "
                         "paper=640 (1600 tokens, for GPUs) (default 160)")
-    t.add_argument("--stem", choices=["patch", "conv"], default="patch",
-                   help="token embedding: patch, the paper's linear 16x16 patchify, or conv, "
-                        "four 3x3 stride-2 convolutions giving the same tokens (docs/policy.md; "
-                        "default patch)")
+    t.add_argument("--stem", choices=["patch", "conv", "gated"], default="patch",
+                   help="token embedding: patch, the paper's linear 16x16 patchify; conv, "
+                        "four 3x3 stride-2 convolutions giving the same tokens; gated "
+                        "(rgb+event only), a conv stem per modality and a learned gate that "
+                        "adds the event tokens to the rgb ones (docs/policy.md; default patch)")
     t.add_argument("--epochs", type=int, default=None, help="default 10")
     t.add_argument("--batch", type=int, default=None, help="default 32")
     t.add_argument("--seed", type=int, default=0)

@@ -9,7 +9,9 @@
 
 The three variants differ only in the patch embedding's input channels, so a variant is
 chosen by ``in_channels`` alone. Every other size is a constructor argument with the
-paper's value as default; ``stem="conv"`` is our one departure, off by default.
+paper's value as default; our departures are the stems, off by default: ``stem="conv"``
+(ConvStem) and, for rgb+event only, ``stem="gated"`` (GatedFusionStem: a stem per
+modality and a learned gate in place of early fusion).
 """
 from __future__ import annotations
 
@@ -88,7 +90,48 @@ class ConvStem(nn.Module):
         return self.net(x).flatten(2).transpose(1, 2)
 
 
-STEMS = {"patch": PatchEmbedding, "conv": ConvStem}
+RGB_PLANES = 3      # an rgb+event input's first planes (inputs.py); the rest are events
+
+
+class GatedFusionStem(nn.Module):
+    """RGB and event planes through stems of their own, the event tokens added to the RGB
+    ones through a learned gate: [B, 3 + E, S, S] -> [B, (S/p)^2, dim].
+
+        rgb    = ConvStem(x[:, :3])                           [B, N, dim]
+        events = ConvStem(x[:, 3:])                           [B, N, dim]
+        gate   = sigmoid(Linear([rgb, events]))               [B, N, dim]
+        tokens = rgb + gate * events
+
+    Early fusion (one stem over all planes) mixes the two in the first convolution, so a
+    patch of floor that moves under a turn, and fires as many events as the target, looks
+    to every later layer like one input. Here each patch's RGB and event content is read
+    apart and the gate, seeing both, can let the events through where they add something
+    (a moving target in a dark or blurred image) and hold them back where they are
+    ego-motion. The gate starts half open (bias 0). Issue 15, item 3.
+    """
+
+    def __init__(self, in_channels: int, dim: int = 64, patch: int = 16):
+        super().__init__()
+        events = in_channels - RGB_PLANES
+        if events < 2 or events % 2:
+            raise ValueError(f"the gated stem fuses 3 rgb planes with 2K event planes "
+                             f"(modality rgb+event), got {in_channels} input channels")
+        self.rgb = ConvStem(RGB_PLANES, dim, patch)
+        self.events = ConvStem(events, dim, patch)
+        self.gate = nn.Linear(2 * dim, dim)
+        nn.init.zeros_(self.gate.bias)
+
+    def gates(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """x [B, 3 + E, S, S] -> (rgb tokens, event tokens, gate), each [B, N, dim]."""
+        rgb, events = self.rgb(x[:, :RGB_PLANES]), self.events(x[:, RGB_PLANES:])
+        return rgb, events, torch.sigmoid(self.gate(torch.cat([rgb, events], dim=2)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        rgb, events, gate = self.gates(x)
+        return rgb + gate * events
+
+
+STEMS = {"patch": PatchEmbedding, "conv": ConvStem, "gated": GatedFusionStem}
 
 
 class TokenSequence(nn.Module):
@@ -203,7 +246,8 @@ class ERP(nn.Module):
         in_channels: 3 (rgb), 2 (event) or 5 (rgb+event); rgb channels come first.
         size: input side in pixels, a multiple of ``patch`` (160 -> 100 tokens, 640 -> 1600).
         dim, heads, mlp, dropout, patch: the paper's 64, 4, 256, 0.1, 16.
-        stem: "patch" (the paper's linear patch embedding) or "conv" (ConvStem).
+        stem: "patch" (the paper's linear patch embedding), "conv" (ConvStem) or "gated"
+            (GatedFusionStem; rgb+event inputs only).
     """
 
     def __init__(self, task: str, in_channels: int, size: int = 160, *, dim: int = 64,

@@ -35,7 +35,7 @@ from typing import Any, Callable
 from .inputs import MODALITIES, parse_size
 
 TASKS = ("nav", "arm")
-STEMS = ("patch", "conv")
+STEMS = ("patch", "conv", "gated")     # model.STEMS, named here without importing torch
 
 
 class GridError(ValueError):

@@ -42,7 +42,7 @@ class TrainSettings:
     num_workers: int = 0
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
     device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
-    stem: str = "patch"           # "patch" (the paper's) or "conv" (model.ConvStem)
+    stem: str = "patch"           # "patch" (the paper's), "conv" or "gated" (model.STEMS)
     norm: Normalisation = field(default_factory=Normalisation)
 
 
@@ -54,6 +54,15 @@ def paper_settings(task: str) -> TrainSettings:
                              plateau={"factor": 0.5, "patience": 2, "threshold": 1e-4,
                                       "threshold_mode": "abs"})
     raise ValueError(f"unknown task {task!r} (nav, arm)")
+
+
+def check_stem(stem: str, modality: str) -> None:
+    """ValueError unless ``stem`` can embed ``modality``'s input: the gated stem fuses rgb
+    with events, so it takes rgb+event alone."""
+    check_modality(modality)
+    if stem == "gated" and modality != "rgb+event":
+        raise ValueError(f"the gated stem fuses rgb and event planes: it needs modality "
+                         f"rgb+event, not {modality}")
 
 
 def _seed_everything(seed: int) -> None:
@@ -106,7 +115,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     from torch.utils.data import DataLoader
 
     from .model import ERP, count_parameters
-    check_modality(modality)
+    check_stem(s.stem, modality)
     data, out = Path(data), Path(out)
     episodes = load_index(data, s.task)
     event_frames = None
@@ -276,6 +285,8 @@ def train(data: str | Path, out: str | Path, task: str, modalities: list[str],
     """Train each modality in turn with the paper's settings for ``task`` (``overrides``
     replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64))."""
     s = settings_for(task, **overrides)
+    for m in modalities:             # refuse before the first modality trains, not after
+        check_stem(s.stem, m)
     results = {}
     for m in modalities:
         results[m] = train_variant(data, out, m, s, progress=progress, log=log)
