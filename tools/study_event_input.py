@@ -44,8 +44,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,12 +51,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from sebvs.metrics import paired_comparison  # noqa: E402
+from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
+                           evaluate, keyed, sebvs)
 
 RECIPE = {"stem": "conv", "lr": 5e-4, "epochs": 5, "patience": 3, "max_frames": 8000,
           "size": 160, "event_clip": 8}
-METRICS = (("success", "paper rate"), ("strict_success", "strict rate"),
-           ("episode_success", "episode success"))
 
 
 SENSOR_SCALE = 0.5      # the topologies' camera.luma_scale: an 80 px sensor for 160 px RGB
@@ -118,12 +115,6 @@ class Variant:
         return sets
 
 
-def sebvs(*args: str) -> None:
-    cmd = [sys.executable, "-m", "sebvs.cli", *args]
-    print("+ sebvs " + " ".join(args), flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=True)
-
-
 def episodes_in(dataset: Path) -> int:
     index = dataset / "index.json"
     return len(json.loads(index.read_text())["episodes"]) if index.is_file() else 0
@@ -156,73 +147,22 @@ def train(args, variant: Variant, data: Path) -> Path:
     return out
 
 
-def evaluate(args, name: str, extra: list[str]) -> dict:
-    out = args.out / "eval" / name
-    results = out / "results.json"
-    if not results.is_file():
-        sebvs("eval", "--task", "nav", "--split", "test", "--seed", str(args.eval_seed),
-              "--episodes", str(args.eval_episodes), "--conditions", args.conditions,
-              "--scenarios", args.scenarios, "--out", str(out), "--workers",
-              str(args.workers), *extra)
-    res = json.loads(results.read_text())
-    if res.get("seed") != args.eval_seed:
-        raise SystemExit(f"{results}: evaluated on topology seed {res.get('seed')}, this "
-                         f"study's is {args.eval_seed}: use another --out")
-    return res
-
-
-def best_losses(train_dir: Path) -> dict[int, float | None]:
-    sweep = json.loads((train_dir / "sweep.json").read_text())
-    return {p["settings"]["seed"]: p.get("best_val_loss") for p in sweep["points"]}
-
-
-def cells(episodes: list[dict]) -> dict[tuple[str, str], list[dict]]:
-    out: dict = {}
-    for ep in episodes:
-        out.setdefault((ep["condition"], ep["scenario"]), []).append(ep)
-    return out
-
-
 def summarise(args, losses: dict, policy_eps: dict, reference: dict) -> dict:
     """Per variant and cell: metric means (over every episode of every training seed),
     and the paired comparison with the reference variant on the same (seed, episode)."""
-    ref_cells = cells(reference["episodes"])
     summary: dict = {"config": {k: (str(v) if isinstance(v, Path) else
                                     [x.label for x in v] if k == "variants" else
                                     v.label if isinstance(v, Variant) else v)
                                 for k, v in vars(args).items()},
                      "recipe": RECIPE, "reference": args.reference.label,
-                     "variants": {}, "reference_rows": {}}
-    for key, eps in ref_cells.items():
-        for modality in ("expert", "no_action"):
-            rows = [e for e in eps if e["modality"] == modality]
-            if rows:
-                summary["reference_rows"].setdefault(modality, {})[f"{key[0]}/{key[1]}"] = {
-                    m: statistics.fmean(e["metrics"][m] for e in rows) for m, _ in METRICS}
-
-    def keyed(variant):
-        return {(s, e["condition"], e["scenario"], e["seed"]): e
-                for s, eps in policy_eps[variant].items() for e in eps}
-
-    base = keyed(args.reference) if args.reference in policy_eps else None
+                     "variants": {}, "reference_rows": baseline_rows(reference)}
+    base = keyed(policy_eps[args.reference]) if args.reference in policy_eps else None
     for variant in args.variants:
-        row: dict = {"description": variant.description,
-                     "best_val_mse": {str(s): v for s, v in losses[variant].items()},
-                     "cells": {}}
-        mine = keyed(variant)
-        for (cond, scen) in sorted({(k[1], k[2]) for k in mine}):
-            keys = sorted(k for k in mine if k[1:3] == (cond, scen))
-            cell = {m: statistics.fmean(mine[k]["metrics"][m] for k in keys)
-                    for m, _ in METRICS}
-            cell["episodes"] = len(keys)
-            if base is not None and variant != args.reference:
-                paired = [k for k in keys if k in base]
-                cell["vs_reference"] = {
-                    m: paired_comparison([mine[k]["metrics"][m] for k in paired],
-                                         [base[k]["metrics"][m] for k in paired])
-                    for m, _ in METRICS}
-            row["cells"][f"{cond}/{scen}"] = cell
-        summary["variants"][variant.label] = row
+        against = {"reference": base} if base is not None and variant != args.reference else {}
+        summary["variants"][variant.label] = {
+            "description": variant.description,
+            "best_val_mse": {str(s): v for s, v in losses[variant].items()},
+            "cells": cell_summary(keyed(policy_eps[variant]), against)}
     return summary
 
 
@@ -340,7 +280,8 @@ def main() -> int:
     losses, policy_eps = {}, {}
     for variant in args.variants:
         data = record(args, variant)
-        losses[variant] = best_losses(train(args, variant, data))
+        losses[variant] = {seed: loss for (_, seed), loss
+                           in best_losses(train(args, variant, data)).items()}
     reference = evaluate(args, "reference", ["--modalities="])    # expert and no action
     for variant in args.variants:
         policy_eps[variant] = {}

@@ -1,0 +1,195 @@
+"""Issue 15, item 3: how should a policy fuse RGB and events? A nav study of three arms.
+
+    rgb             RGB only, one conv stem                       (the baseline to beat)
+    early           RGB+Event, one conv stem over all five planes (the paper's early fusion)
+    gated           RGB+Event, a conv stem per modality and a learned gate that adds the
+                    event tokens to the RGB ones (model.GatedFusionStem, --stem gated)
+
+Every arm trains on the same recording with the same reduced recipe (the event input
+study's: lr 5e-4, 8,000 strided frames, 5 epochs, counts clipped at 8) and the same
+training seeds; only the input and the stem differ:
+
+1. train   `sebvs train-sweep tools/grids/nav_fusion_conv.toml` (rgb and early) and
+           `tools/grids/nav_fusion_gated.toml` (gated), into OUT/train/conv and
+           OUT/train/gated; the grids name the data (datasets/nav_rand60; the command
+           that records it is in the grid files) and the seeds;
+2. eval    each arm's policy per training seed in closed loop on held-out test-split
+           episodes (`sebvs eval --split test --seed S`), beside the expert and the
+           no-action baseline on the same episodes.
+
+Reported per arm: the best validation MSE per training seed (one split per seed, the same
+in every arm) and, per condition and scenario, the paper's rate, the strict rate and
+episode success, mean over the training seeds, with paired sign tests (over episodes,
+seeds pooled): early and gated against rgb (does the event input help?), gated against
+early (does the gate help?). Nothing is chosen here: arms, seeds, recipe and test seed are
+fixed before the run. Every step is skipped when its output is complete, so an
+interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png.
+
+    tools/study_fusion.py --eval-seed 100006 --out out/study_fusion     # docs/results.md
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
+                           evaluate, keyed, sebvs)
+
+# arm -> (modality, stem, grid); the grid's stem is the arm's, its other settings shared
+ARMS = {"rgb": ("rgb", "conv", "nav_fusion_conv"),
+        "early": ("rgb+event", "conv", "nav_fusion_conv"),
+        "gated": ("rgb+event", "gated", "nav_fusion_gated")}
+DESCRIPTION = {"rgb": "RGB only", "early": "RGB+Event, early fusion",
+               "gated": "RGB+Event, gated fusion"}
+# (arm, the arm it is paired against)
+COMPARISONS = (("early", "rgb"), ("gated", "rgb"), ("gated", "early"))
+
+
+def train(args) -> dict:
+    """Both sweeps (finished points are skipped); {(arm, seed): best validation MSE}."""
+    losses = {}
+    for stem in ("conv", "gated"):
+        out = args.out / "train" / stem
+        sebvs("train-sweep", str(ROOT / "tools" / "grids" / f"nav_fusion_{stem}.toml"),
+              "--out", str(out), "--threads", str(args.threads), "--no-progress")
+        for (modality, seed), loss in best_losses(out).items():
+            arm = next(a for a, (m, s, _) in ARMS.items() if (m, s) == (modality, stem))
+            losses[(arm, seed)] = loss
+    return losses
+
+
+def checkpoint_dir(args, arm: str, seed: int) -> Path:
+    modality, stem, _ = ARMS[arm]
+    return args.out / "train" / stem / f"modality={modality}__seed={seed}"
+
+
+def summarise(args, losses: dict, arm_eps: dict, reference: dict) -> dict:
+    """Per arm and cell: metric means over every episode of every training seed, and the
+    paired comparisons of COMPARISONS on the same (training seed, episode)."""
+    by_arm = {arm: keyed(eps) for arm, eps in arm_eps.items()}
+    summary: dict = {"config": {k: str(v) if isinstance(v, Path) else v
+                                for k, v in vars(args).items()},
+                     "arms": {}, "reference_rows": baseline_rows(reference)}
+    for arm, mine in by_arm.items():
+        against = {base: by_arm[base] for a, base in COMPARISONS if a == arm and base in by_arm}
+        modality, stem, _ = ARMS[arm]
+        summary["arms"][arm] = {
+            "description": DESCRIPTION[arm], "modality": modality, "stem": stem,
+            "best_val_mse": {str(s): v for (a, s), v in sorted(losses.items()) if a == arm},
+            "cells": cell_summary(mine, against)}
+    return summary
+
+
+def _paired(vs: dict | None) -> str:
+    if not vs or not vs["n"]:
+        return "-"
+    return f"{100 * vs['mean_diff']:+.1f}, p {vs['p_sign']:.2f}"
+
+
+def report(summary: dict) -> str:
+    arms = summary["arms"]
+    cell_names = sorted({c for a in arms.values() for c in a["cells"]})
+    seeds = sorted({s for a in arms.values() for s in a["best_val_mse"]})
+    lines = ["# Fusion study (tools/study_fusion.py)", "",
+             "Best validation MSE per training seed (same data and split per seed):", "",
+             "| arm | " + " | ".join(f"seed {s}" for s in seeds) + " |",
+             "|---|" + "---|" * len(seeds)]
+    for a in arms.values():
+        vals = a["best_val_mse"]
+        lines.append(f"| {a['description']} | " + " | ".join(
+            "-" if vals.get(s) is None else f"{vals[s]:.5f}" for s in seeds) + " |")
+    for metric, label in METRICS:
+        lines += ["", f"Closed loop, {label} (%; mean over training seeds and episodes):", "",
+                  "| row | " + " | ".join(cell_names) + " |",
+                  "|---|" + "---|" * len(cell_names)]
+        for name, rows in summary["reference_rows"].items():
+            lines.append(f"| {name} | " + " | ".join(
+                f"{100 * rows[c][metric]:.1f}" if c in rows else "-" for c in cell_names) + " |")
+        for a in arms.values():
+            lines.append(f"| {a['description']} | " + " | ".join(
+                f"{100 * a['cells'][c][metric]:.1f}" if c in a["cells"] else "-"
+                for c in cell_names) + " |")
+        lines += ["", f"Paired differences, {label} (points; episodes of both seeds pooled; "
+                      f"exact sign test p):", "",
+                  "| comparison | " + " | ".join(cell_names) + " |",
+                  "|---|" + "---|" * len(cell_names)]
+        for arm, base in COMPARISONS:
+            if arm not in arms:
+                continue
+            lines.append(f"| {arm} - {base} | " + " | ".join(
+                _paired(arms[arm]["cells"].get(c, {}).get(f"vs_{base}", {}).get(metric))
+                for c in cell_names) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    arms = summary["arms"]
+    cell_names = sorted({c for a in arms.values() for c in a["cells"]})
+    x = np.arange(len(cell_names))
+    width = 0.8 / max(1, len(arms))
+    fig, ax = plt.subplots(figsize=(2 + 1.7 * len(cell_names), 3.8))
+    for j, a in enumerate(arms.values()):
+        ax.bar(x + (j - (len(arms) - 1) / 2) * width,
+               [100 * a["cells"].get(c, {}).get("success", float("nan")) for c in cell_names],
+               width, label=a["description"])
+    no_action = summary["reference_rows"].get("no_action", {})
+    for i, c in enumerate(cell_names):
+        if c in no_action:
+            ax.hlines(100 * no_action[c]["success"], i - 0.45, i + 0.45, colors="k",
+                      linestyles=":", label="no action" if i == 0 else None)
+    ax.set_xticks(x, [c.replace("/", "\n") for c in cell_names], fontsize=8)
+    ax.set(ylabel="paper rate (%)", ylim=(0, 105),
+           title="nav, test split: RGB alone, early and gated fusion")
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_fusion")
+    ap.add_argument("--eval-seed", type=int, default=100006,
+                    help="test-split topology seed (100000+), one no earlier study used "
+                         "(100004: window study; 100005: bins study; 100006: this one)")
+    ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
+    ap.add_argument("--conditions", default="nominal,fast,low_light")
+    ap.add_argument("--scenarios", default="indoor,outdoor")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads for training")
+    args = ap.parse_args()
+    if args.eval_seed < 100000:
+        ap.error("test seeds are 100000 and above (sebvs/data/splits.py)")
+    args.out = args.out.resolve()
+    losses = train(args)
+    seeds = sorted({s for _, s in losses})
+    reference = evaluate(args, "reference", ["--modalities="])    # expert and no action
+    arm_eps = {}
+    for arm, (modality, _, _) in ARMS.items():
+        arm_eps[arm] = {}
+        for seed in seeds:
+            res = evaluate(args, f"{arm}_seed{seed}",
+                           ["--modalities", modality, "--no-expert", "--no-baseline",
+                            "--checkpoints", str(checkpoint_dir(args, arm, seed))])
+            arm_eps[arm][seed] = res["episodes"]
+    summary = summarise(args, losses, arm_eps, reference)
+    (args.out / "study.json").write_text(json.dumps(summary, indent=1))
+    (args.out / "study.md").write_text(report(summary))
+    plot(summary, args.out / "study.png")
+    print(report(summary))
+    print(f"wrote {args.out}/study.json, study.md, study.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
