@@ -42,7 +42,6 @@ Writes OUT/study.json, OUT/study.md and OUT/study.png. The two studies of docs/r
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from dataclasses import dataclass
@@ -52,7 +51,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, keyed, sebvs)
+                           evaluate, evaluate_policy, keyed, sebvs, study_parser,
+                           write_study)
 
 RECIPE = {"stem": "conv", "lr": 5e-4, "epochs": 5, "patience": 3, "max_frames": 8000,
           "size": 160, "event_clip": 8}
@@ -235,9 +235,7 @@ def plot(summary: dict, path: Path) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_event_input")
+    ap = study_parser(__doc__, "study_event_input", 100004, "nominal,fast")
     ap.add_argument("--variants", default="0.05,0.1,0.2,0.4",
                     help="event inputs, WINDOW (counts) or WINDOWxBINS (time bins per "
                          "polarity), seconds; default 0.05,0.1,0.2,0.4 (the window study)")
@@ -248,13 +246,6 @@ def main() -> int:
     ap.add_argument("--record-seed", type=int, default=3,
                     help="topology seed of the recordings (a recording seed, < 1000)")
     ap.add_argument("--train-seeds", default="0,1")
-    ap.add_argument("--eval-seed", type=int, default=100004,
-                    help="test-split topology seed (100000+); a new study takes one no "
-                         "earlier study used (100004: the window study; 100005: bins)")
-    ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
-    ap.add_argument("--conditions", default="nominal,fast")
-    ap.add_argument("--scenarios", default="indoor,outdoor")
-    ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--threads", type=int, default=2, help="torch threads for training")
     ap.add_argument("--quick", action="store_true",
                     help="plumbing check: variants 0.1 and 0.1x2, 4 x 2 s episodes, 1 "
@@ -287,16 +278,10 @@ def main() -> int:
         policy_eps[variant] = {}
         for seed in args.train_seeds:
             ck = args.out / "train" / variant.tag / f"modality=event__seed={seed}"
-            res = evaluate(args, f"{variant.tag}_seed{seed}",
-                           ["--modalities", "event", "--no-expert", "--no-baseline",
-                            "--checkpoints", str(ck), *variant.accumulator_sets()])
-            policy_eps[variant][seed] = res["episodes"]
+            policy_eps[variant][seed] = evaluate_policy(
+                args, f"{variant.tag}_seed{seed}", "event", ck, variant.accumulator_sets())
     summary = summarise(args, losses, policy_eps, reference)
-    (args.out / "study.json").write_text(json.dumps(summary, indent=1))
-    (args.out / "study.md").write_text(report(summary))
-    plot(summary, args.out / "study.png")
-    print(report(summary))
-    print(f"wrote {args.out}/study.json, study.md, study.png")
+    write_study(args.out, summary, report(summary), plot)
     return 0
 
 

@@ -29,8 +29,6 @@ interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png
 """
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -38,7 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, keyed, sebvs)
+                           evaluate, evaluate_policy, keyed, sebvs, study_parser,
+                           write_study)
 
 # arm -> (modality, stem, grid); the grid's stem is the arm's, its other settings shared
 ARMS = {"rgb": ("rgb", "conv", "nav_fusion_conv"),
@@ -156,16 +155,7 @@ def plot(summary: dict, path: Path) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_fusion")
-    ap.add_argument("--eval-seed", type=int, default=100006,
-                    help="test-split topology seed (100000+), one no earlier study used "
-                         "(100004: window study; 100005: bins study; 100006: this one)")
-    ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
-    ap.add_argument("--conditions", default="nominal,fast,low_light")
-    ap.add_argument("--scenarios", default="indoor,outdoor")
-    ap.add_argument("--workers", type=int, default=2)
+    ap = study_parser(__doc__, "study_fusion", 100006, "nominal,fast,low_light")
     ap.add_argument("--threads", type=int, default=1, help="torch threads for training")
     args = ap.parse_args()
     if args.eval_seed < 100000:
@@ -178,16 +168,10 @@ def main() -> int:
     for arm, (modality, _, _) in ARMS.items():
         arm_eps[arm] = {}
         for seed in seeds:
-            res = evaluate(args, f"{arm}_seed{seed}",
-                           ["--modalities", modality, "--no-expert", "--no-baseline",
-                            "--checkpoints", str(checkpoint_dir(args, arm, seed))])
-            arm_eps[arm][seed] = res["episodes"]
+            arm_eps[arm][seed] = evaluate_policy(args, f"{arm}_seed{seed}", modality,
+                                                 checkpoint_dir(args, arm, seed))
     summary = summarise(args, losses, arm_eps, reference)
-    (args.out / "study.json").write_text(json.dumps(summary, indent=1))
-    (args.out / "study.md").write_text(report(summary))
-    plot(summary, args.out / "study.png")
-    print(report(summary))
-    print(f"wrote {args.out}/study.json, study.md, study.png")
+    write_study(args.out, summary, report(summary), plot)
     return 0
 
 

@@ -26,6 +26,24 @@ def sebvs(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sebvs.cli", *args], cwd=ROOT, check=True)
 
 
+def study_parser(doc: str, name: str, seed: int, conditions: str):
+    """A study's command line with what every study takes: --out (default out/NAME) and
+    the closed-loop options: the test seed (default ``seed``), episodes per cell,
+    conditions (default ``conditions``), scenarios and workers. ``doc`` is its --help."""
+    import argparse
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / name)
+    ap.add_argument("--eval-seed", type=int, default=seed,
+                    help=f"test-split topology seed (100000+), one no earlier study used "
+                         f"(100004: window study; 100005: bins study; 100006: fusion "
+                         f"study; default {seed})")
+    ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
+    ap.add_argument("--conditions", default=conditions, help=f"default {conditions}")
+    ap.add_argument("--scenarios", default="indoor,outdoor")
+    ap.add_argument("--workers", type=int, default=2)
+    return ap
+
+
 def evaluate(args, name: str, extra: list[str]) -> dict:
     """`sebvs eval --task nav --split test` into ``args.out/eval/name``, unless its
     results.json exists; returns the results. ``args`` carries out, eval_seed,
@@ -42,6 +60,24 @@ def evaluate(args, name: str, extra: list[str]) -> dict:
         raise SystemExit(f"{results}: evaluated on topology seed {res.get('seed')}, this "
                          f"study's is {args.eval_seed}: use another --out")
     return res
+
+
+def evaluate_policy(args, name: str, modality: str, checkpoints: Path,
+                    extra: tuple[str, ...] = ()) -> list[dict]:
+    """One checkpoint directory's ``modality`` policy alone (no expert, no baseline: the
+    "reference" evaluation has those), on the study's episodes; returns its episodes."""
+    return evaluate(args, name, ["--modalities", modality, "--no-expert", "--no-baseline",
+                                 "--checkpoints", str(checkpoints), *extra])["episodes"]
+
+
+def write_study(out: Path, summary: dict, text: str, plot) -> None:
+    """OUT/study.json, OUT/study.md (``text``) and OUT/study.png (``plot(summary, path)``),
+    and the report printed."""
+    (out / "study.json").write_text(json.dumps(summary, indent=1))
+    (out / "study.md").write_text(text)
+    plot(summary, out / "study.png")
+    print(text)
+    print(f"wrote {out}/study.json, study.md, study.png")
 
 
 def best_losses(train_dir: Path) -> dict:
