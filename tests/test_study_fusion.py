@@ -75,3 +75,20 @@ def test_arms_find_their_sweep_points(tool):
     for arm, (modality, stem, grid) in tool.ARMS.items():
         text = (TOOL.parent / "grids" / f"{grid}.toml").read_text()
         assert f'stem = "{stem}"' in text and f'"{modality}"' in text
+
+
+def test_other_training_seeds_rewrite_only_the_seed_axis(tool, tmp_path):
+    grid = TOOL.parent / "grids" / "nav_fusion_gated.toml"
+    assert tool.grid_with_seeds(grid, None, tmp_path) == grid
+    copy = tool.grid_with_seeds(grid, [2, 3, 4], tmp_path)
+    assert copy.parent == tmp_path / "grids"
+    old, new = grid.read_text().splitlines(), copy.read_text().splitlines()[1:]
+    assert [(a, b) for a, b in zip(old, new) if a != b] == [("seed = [0, 1]", "seed = [2, 3, 4]")]
+    assert len(old) == len(new)
+
+
+def test_paired_cells_say_below_one_percent_and_nothing_paired():
+    from tools.studyio import paired_text
+    assert paired_text({"n": 20, "mean_diff": 0.166, "p_sign": 0.0004}) == "+16.6, p < 0.01"
+    assert paired_text({"n": 20, "mean_diff": -0.021, "p_sign": 0.5}) == "-2.1, p 0.50"
+    assert paired_text({"n": 0, "mean_diff": 0.0, "p_sign": 1.0}) == paired_text(None) == "-"

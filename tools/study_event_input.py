@@ -51,8 +51,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, evaluate_policy, keyed, sebvs, study_parser,
-                           write_study)
+                           evaluate, evaluate_policy, keyed, paired_text, sebvs,
+                           study_parser, write_study)
 
 RECIPE = {"stem": "conv", "lr": 5e-4, "epochs": 5, "patience": 3, "max_frames": 8000,
           "size": 160, "event_clip": 8}
@@ -197,7 +197,7 @@ def report(summary: dict) -> str:
                 text = f"{100 * cell[metric]:.1f}"
                 vs = cell.get("vs_reference", {}).get(metric)
                 if vs and vs["n"]:
-                    text += f" ({100 * vs['mean_diff']:+.1f}, p {vs['p_sign']:.2f})"
+                    text += f" ({paired_text(vs)})"
                 out.append(text)
             lines.append(f"| event, {v['description']} | " + " | ".join(out) + " |")
     return "\n".join(lines) + "\n"

@@ -26,6 +26,8 @@ fixed before the run. Every step is skipped when its output is complete, so an
 interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png.
 
     tools/study_fusion.py --eval-seed 100006 --out out/study_fusion     # docs/results.md
+    tools/study_fusion.py --eval-seed 100007 --train-seeds 2,3,4 \
+        --out out/study_fusion_confirm     # its replication: new training seeds, new episodes
 """
 from __future__ import annotations
 
@@ -36,8 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, evaluate_policy, keyed, sebvs, study_parser,
-                           write_study)
+                           evaluate, evaluate_policy, keyed, paired_text, sebvs,
+                           study_parser, write_study)
 
 # arm -> (modality, stem, grid); the grid's stem is the arm's, its other settings shared
 ARMS = {"rgb": ("rgb", "conv", "nav_fusion_conv"),
@@ -49,13 +51,32 @@ DESCRIPTION = {"rgb": "RGB only", "early": "RGB+Event, early fusion",
 COMPARISONS = (("early", "rgb"), ("gated", "rgb"), ("gated", "early"))
 
 
+def grid_with_seeds(grid: Path, seeds: list[int] | None, out: Path) -> Path:
+    """The grid as it is, or, given ``seeds``, a copy under ``out`` whose seed axis lists
+    them instead (everything else as in the file)."""
+    if seeds is None:
+        return grid
+    lines = grid.read_text().splitlines()
+    axis = [i for i, line in enumerate(lines) if line.replace(" ", "").startswith("seed=[")]
+    if len(axis) != 1:
+        raise SystemExit(f"{grid}: expected one 'seed = [...]' axis line, found {len(axis)}")
+    lines[axis[0]] = f"seed = {seeds}"
+    copy = out / "grids" / grid.name
+    copy.parent.mkdir(parents=True, exist_ok=True)
+    copy.write_text(f"# {grid.name} with seed = {seeds}, written by tools/study_fusion.py\n"
+                    + "\n".join(lines) + "\n")
+    return copy
+
+
 def train(args) -> dict:
     """Both sweeps (finished points are skipped); {(arm, seed): best validation MSE}."""
     losses = {}
     for stem in ("conv", "gated"):
         out = args.out / "train" / stem
-        sebvs("train-sweep", str(ROOT / "tools" / "grids" / f"nav_fusion_{stem}.toml"),
-              "--out", str(out), "--threads", str(args.threads), "--no-progress")
+        grid = grid_with_seeds(ROOT / "tools" / "grids" / f"nav_fusion_{stem}.toml",
+                               args.train_seeds, args.out)
+        sebvs("train-sweep", str(grid), "--out", str(out), "--threads", str(args.threads),
+              "--no-progress")
         for (modality, seed), loss in best_losses(out).items():
             arm = next(a for a, (m, s, _) in ARMS.items() if (m, s) == (modality, stem))
             losses[(arm, seed)] = loss
@@ -82,12 +103,6 @@ def summarise(args, losses: dict, arm_eps: dict, reference: dict) -> dict:
             "best_val_mse": {str(s): v for (a, s), v in sorted(losses.items()) if a == arm},
             "cells": cell_summary(mine, against)}
     return summary
-
-
-def _paired(vs: dict | None) -> str:
-    if not vs or not vs["n"]:
-        return "-"
-    return f"{100 * vs['mean_diff']:+.1f}, p {vs['p_sign']:.2f}"
 
 
 def report(summary: dict) -> str:
@@ -121,7 +136,7 @@ def report(summary: dict) -> str:
             if arm not in arms:
                 continue
             lines.append(f"| {arm} - {base} | " + " | ".join(
-                _paired(arms[arm]["cells"].get(c, {}).get(f"vs_{base}", {}).get(metric))
+                paired_text(arms[arm]["cells"].get(c, {}).get(f"vs_{base}", {}).get(metric))
                 for c in cell_names) + " |")
     return "\n".join(lines) + "\n"
 
@@ -157,9 +172,13 @@ def plot(summary: dict, path: Path) -> None:
 def main() -> int:
     ap = study_parser(__doc__, "study_fusion", 100006, "nominal,fast,low_light")
     ap.add_argument("--threads", type=int, default=1, help="torch threads for training")
+    ap.add_argument("--train-seeds", default=None,
+                    help="training seeds, e.g. 2,3,4 (default: the grids' own, 0 and 1)")
     args = ap.parse_args()
     if args.eval_seed < 100000:
         ap.error("test seeds are 100000 and above (sebvs/data/splits.py)")
+    if args.train_seeds is not None:
+        args.train_seeds = [int(x) for x in args.train_seeds.split(",")]
     args.out = args.out.resolve()
     losses = train(args)
     seeds = sorted({s for _, s in losses})

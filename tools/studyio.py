@@ -87,6 +87,15 @@ def best_losses(train_dir: Path) -> dict:
             for p in sweep["points"]}
 
 
+def paired_text(vs: dict | None) -> str:
+    """A paired comparison as a table cell: "+2.5, p 0.04" (points), "p < 0.01" below
+    that, "-" when no episode pairs."""
+    if not vs or not vs["n"]:
+        return "-"
+    p = vs["p_sign"]
+    return f"{100 * vs['mean_diff']:+.1f}, " + ("p < 0.01" if p < 0.01 else f"p {p:.2f}")
+
+
 def cells(episodes: list[dict]) -> dict[tuple[str, str], list[dict]]:
     out: dict = {}
     for ep in episodes:
