@@ -142,6 +142,8 @@ def report(summary: dict) -> str:
 
 
 def plot(summary: dict, path: Path) -> None:
+    """Paper rate and strict rate per cell, one bar per arm; the no-action baseline dotted
+    and the expert dashed across each cell's bars."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -150,20 +152,22 @@ def plot(summary: dict, path: Path) -> None:
     cell_names = sorted({c for a in arms.values() for c in a["cells"]})
     x = np.arange(len(cell_names))
     width = 0.8 / max(1, len(arms))
-    fig, ax = plt.subplots(figsize=(2 + 1.7 * len(cell_names), 3.8))
-    for j, a in enumerate(arms.values()):
-        ax.bar(x + (j - (len(arms) - 1) / 2) * width,
-               [100 * a["cells"].get(c, {}).get("success", float("nan")) for c in cell_names],
-               width, label=a["description"])
-    no_action = summary["reference_rows"].get("no_action", {})
-    for i, c in enumerate(cell_names):
-        if c in no_action:
-            ax.hlines(100 * no_action[c]["success"], i - 0.45, i + 0.45, colors="k",
-                      linestyles=":", label="no action" if i == 0 else None)
-    ax.set_xticks(x, [c.replace("/", "\n") for c in cell_names], fontsize=8)
-    ax.set(ylabel="paper rate (%)", ylim=(0, 105),
-           title="nav, test split: RGB alone, early and gated fusion")
-    ax.legend(fontsize=7, loc="lower left")
+    fig, axes = plt.subplots(2, 1, figsize=(max(8.0, 2 + 1.5 * len(cell_names)), 6.4), sharex=True)
+    for ax, (metric, label) in zip(axes, METRICS[:2]):
+        for j, a in enumerate(arms.values()):
+            ax.bar(x + (j - (len(arms) - 1) / 2) * width,
+                   [100 * a["cells"].get(c, {}).get(metric, float("nan")) for c in cell_names],
+                   width, label=a["description"])
+        for row, style in (("no_action", ":"), ("expert", "--")):
+            rows = summary["reference_rows"].get(row, {})
+            for i, c in enumerate(cell_names):
+                if c in rows:
+                    ax.hlines(100 * rows[c][metric], i - 0.45, i + 0.45, colors="k",
+                              linestyles=style, label=row.replace("_", " ") if i == 0 else None)
+        ax.set(ylabel=f"{label} (%)", ylim=(0, 105))
+    axes[0].set_title("nav, test split: RGB alone, early and gated fusion (mean over seeds)")
+    axes[1].set_xticks(x, [c.replace("/", "\n") for c in cell_names], fontsize=8)
+    axes[1].legend(fontsize=7, ncol=5, loc="upper center")   # the strict panel has room
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
