@@ -93,10 +93,29 @@ def test_gated_stem_adds_event_tokens_through_its_gate():
                for p in (stem.rgb.net[0].weight, stem.events.net[0].weight, stem.gate.weight))
 
 
+@pytest.mark.parametrize("stem", ["dual", "gated"])
 @pytest.mark.parametrize("ch", [2, 3, 4])
-def test_gated_stem_needs_rgb_and_event_planes(ch):
-    with pytest.raises(ValueError, match="gated stem fuses 3 rgb planes with 2K event planes"):
-        ERP("nav", ch, 64, stem="gated")
+def test_fusion_stems_need_rgb_and_event_planes(stem, ch):
+    with pytest.raises(ValueError, match="fuses 3 rgb planes with 2K event planes .modality "
+                                         r"rgb\+event., got \d input channels"):
+        ERP("nav", ch, 64, stem=stem)
+
+
+def test_dual_stem_is_the_gated_one_without_its_gate():
+    torch.manual_seed(0)
+    dual, gated = ERP("nav", 5, 64, stem="dual").eval(), ERP("nav", 5, 64, stem="gated").eval()
+    x = torch.rand(2, 5, 64, 64)
+    rgb, events = dual.embed.streams(x)
+    assert torch.equal(dual.embed(x), rgb + events)
+    # the same stems; the gate is the only difference in weights
+    assert count_parameters(gated) - count_parameters(dual) == count_parameters(gated.embed.gate)
+    assert {k for k in gated.state_dict()} - {k for k in dual.state_dict()} == \
+        {"embed.gate.weight", "embed.gate.bias"}
+    # an event plane moves the tokens at full weight: no gate holds it back
+    x2 = x.clone()
+    x2[:, 3:] += 1.0
+    assert torch.allclose(dual.embed(x2) - dual.embed(x), dual.embed.streams(x2)[1] - events,
+                          atol=1e-6)
 
 
 def test_gated_stem_checkpoint_round_trip(tmp_path):

@@ -8,8 +8,8 @@ JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
 Inference is what the policy actor does per tick: model.eval(), torch.inference_mode(),
 batch 1, the nav head (the arm head adds two small linear layers). Input preparation
 (inputs.py: resize + scale from a 640x640 frame) is timed separately as `prep_ms`.
-The token embeddings named by --stems are timed: the paper's patch projection, ConvStem
-and GatedFusionStem (rgb+event only: it has no other modality).
+The token embeddings named by --stems are timed: the paper's patch projection, ConvStem,
+GatedFusionStem and DualStem (the last two rgb+event only: they have no other modality).
 Training is one Adam step (forward, MSE, backward, update) on random batches.
 """
 from __future__ import annotations
@@ -108,7 +108,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--stems", default="patch,conv,gated",
                     help="token embeddings to time: patch (the paper's), conv (ConvStem), "
-                         "gated (GatedFusionStem, rgb+event only)")
+                         "gated (GatedFusionStem), dual (DualStem); the last two rgb+event "
+                         "only")
     args = ap.parse_args(argv)
     stems = args.stems.split(",")
     sizes = [int(s) for s in args.sizes.split(",")]

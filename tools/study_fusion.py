@@ -2,6 +2,8 @@
 
     rgb             RGB only, one conv stem                       (the baseline to beat)
     early           RGB+Event, one conv stem over all five planes (the paper's early fusion)
+    dual            RGB+Event, a conv stem per modality, the tokens summed (model.DualStem,
+                    --stem dual): the control that tells the gate from the second stem
     gated           RGB+Event, a conv stem per modality and a learned gate that adds the
                     event tokens to the RGB ones (model.GatedFusionStem, --stem gated)
 
@@ -9,9 +11,9 @@ Every arm trains on the same recording with the same reduced recipe (the event i
 study's: lr 5e-4, 8,000 strided frames, 5 epochs, counts clipped at 8) and the same
 training seeds; only the input and the stem differ:
 
-1. train   `sebvs train-sweep tools/grids/nav_fusion_conv.toml` (rgb and early) and
-           `tools/grids/nav_fusion_gated.toml` (gated), into OUT/train/conv and
-           OUT/train/gated; the grids name the data (datasets/nav_rand60; the command
+1. train   `sebvs train-sweep tools/grids/nav_fusion_conv.toml` (rgb and early),
+           `nav_fusion_dual.toml` (dual) and `nav_fusion_gated.toml` (gated), into
+           OUT/train/<stem>; the grids name the data (datasets/nav_rand60; the command
            that records it is in the grid files) and the seeds;
 2. eval    each arm's policy per training seed in closed loop on held-out test-split
            episodes (`sebvs eval --split test --seed S`), beside the expert and the
@@ -20,8 +22,8 @@ training seeds; only the input and the stem differ:
 Reported per arm: the best validation MSE per training seed (one split per seed, the same
 in every arm) and, per condition and scenario, the paper's rate, the strict rate and
 episode success, mean over the training seeds, with paired sign tests (over episodes,
-seeds pooled): early and gated against rgb (does the event input help?), gated against
-early (does the gate help?). Nothing is chosen here: arms, seeds, recipe and test seed are
+seeds pooled): each fusion against rgb (do the events help?), dual against early (does
+a stem per modality help?) and gated against dual (does the gate?). Nothing is chosen here: arms, seeds, recipe and test seed are
 fixed before the run. Every step is skipped when its output is complete, so an
 interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png.
 
@@ -44,11 +46,13 @@ from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  #
 # arm -> (modality, stem, grid); the grid's stem is the arm's, its other settings shared
 ARMS = {"rgb": ("rgb", "conv", "nav_fusion_conv"),
         "early": ("rgb+event", "conv", "nav_fusion_conv"),
+        "dual": ("rgb+event", "dual", "nav_fusion_dual"),
         "gated": ("rgb+event", "gated", "nav_fusion_gated")}
 DESCRIPTION = {"rgb": "RGB only", "early": "RGB+Event, early fusion",
-               "gated": "RGB+Event, gated fusion"}
+               "dual": "RGB+Event, two stems, no gate", "gated": "RGB+Event, gated fusion"}
 # (arm, the arm it is paired against)
-COMPARISONS = (("early", "rgb"), ("gated", "rgb"), ("gated", "early"))
+COMPARISONS = (("early", "rgb"), ("dual", "rgb"), ("gated", "rgb"), ("dual", "early"),
+               ("gated", "early"), ("gated", "dual"))
 
 
 def grid_with_seeds(grid: Path, seeds: list[int] | None, out: Path) -> Path:
@@ -71,7 +75,7 @@ def grid_with_seeds(grid: Path, seeds: list[int] | None, out: Path) -> Path:
 def train(args) -> dict:
     """Both sweeps (finished points are skipped); {(arm, seed): best validation MSE}."""
     losses = {}
-    for stem in ("conv", "gated"):
+    for stem in ("conv", "dual", "gated"):
         out = args.out / "train" / stem
         grid = grid_with_seeds(ROOT / "tools" / "grids" / f"nav_fusion_{stem}.toml",
                                args.train_seeds, args.out)
@@ -165,7 +169,7 @@ def plot(summary: dict, path: Path) -> None:
                     ax.hlines(100 * rows[c][metric], i - 0.45, i + 0.45, colors="k",
                               linestyles=style, label=row.replace("_", " ") if i == 0 else None)
         ax.set(ylabel=f"{label} (%)", ylim=(0, 105))
-    axes[0].set_title("nav, test split: RGB alone, early and gated fusion (mean over seeds)")
+    axes[0].set_title("nav, test split: RGB alone and three fusions (mean over seeds)")
     axes[1].set_xticks(x, [c.replace("/", "\n") for c in cell_names], fontsize=8)
     axes[1].legend(fontsize=7, ncol=5, loc="upper center")   # the strict panel has room
     fig.tight_layout()

@@ -82,11 +82,12 @@ def register(subparsers) -> None:
     t.add_argument("--size", type=_size, default=160,
                    help="input side in px, or a preset: cpu=160 (100 tokens), "
                         "paper=640 (1600 tokens, for GPUs) (default 160)")
-    t.add_argument("--stem", choices=["patch", "conv", "gated"], default="patch",
+    t.add_argument("--stem", choices=["patch", "conv", "dual", "gated"], default="patch",
                    help="token embedding: patch, the paper's linear 16x16 patchify; conv, "
-                        "four 3x3 stride-2 convolutions giving the same tokens; gated "
-                        "(rgb+event only), a conv stem per modality and a learned gate that "
-                        "adds the event tokens to the rgb ones (docs/policy.md; default patch)")
+                        "four 3x3 stride-2 convolutions giving the same tokens; for rgb+event "
+                        "only, gated, a conv stem per modality and a learned gate that adds "
+                        "the event tokens to the rgb ones, or dual, the same two stems summed "
+                        "without a gate (docs/policy.md; default patch)")
     t.add_argument("--epochs", type=int, default=None, help="default 10")
     t.add_argument("--batch", type=int, default=None, help="default 32")
     t.add_argument("--seed", type=int, default=0)

@@ -11,7 +11,8 @@ The three variants differ only in the patch embedding's input channels, so a var
 chosen by ``in_channels`` alone. Every other size is a constructor argument with the
 paper's value as default; our departures are the stems, off by default: ``stem="conv"``
 (ConvStem) and, for rgb+event only, ``stem="gated"`` (GatedFusionStem: a stem per
-modality and a learned gate in place of early fusion).
+modality and a learned gate in place of early fusion) and its control ``stem="dual"``
+(DualStem: the two stems, no gate).
 """
 from __future__ import annotations
 
@@ -93,7 +94,35 @@ class ConvStem(nn.Module):
 RGB_PLANES = 3      # an rgb+event input's first planes (inputs.py); the rest are events
 
 
-class GatedFusionStem(nn.Module):
+class DualStem(nn.Module):
+    """RGB and event planes through conv stems of their own, the tokens summed:
+    [B, 3 + E, S, S] -> [B, (S/p)^2, dim].
+
+        tokens = ConvStem(x[:, :3]) + ConvStem(x[:, 3:])
+
+    The control for GatedFusionStem: the same two stems without the gate, so a study can
+    tell what the gate adds from what a stem per modality adds.
+    """
+
+    def __init__(self, in_channels: int, dim: int = 64, patch: int = 16):
+        super().__init__()
+        events = in_channels - RGB_PLANES
+        if events < 2 or events % 2:
+            raise ValueError(f"the {type(self).__name__} fuses 3 rgb planes with 2K event "
+                             f"planes (modality rgb+event), got {in_channels} input channels")
+        self.rgb = ConvStem(RGB_PLANES, dim, patch)
+        self.events = ConvStem(events, dim, patch)
+
+    def streams(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """x [B, 3 + E, S, S] -> (rgb tokens, event tokens), each [B, N, dim]."""
+        return self.rgb(x[:, :RGB_PLANES]), self.events(x[:, RGB_PLANES:])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        rgb, events = self.streams(x)
+        return rgb + events
+
+
+class GatedFusionStem(DualStem):
     """RGB and event planes through stems of their own, the event tokens added to the RGB
     ones through a learned gate: [B, 3 + E, S, S] -> [B, (S/p)^2, dim].
 
@@ -111,19 +140,13 @@ class GatedFusionStem(nn.Module):
     """
 
     def __init__(self, in_channels: int, dim: int = 64, patch: int = 16):
-        super().__init__()
-        events = in_channels - RGB_PLANES
-        if events < 2 or events % 2:
-            raise ValueError(f"the gated stem fuses 3 rgb planes with 2K event planes "
-                             f"(modality rgb+event), got {in_channels} input channels")
-        self.rgb = ConvStem(RGB_PLANES, dim, patch)
-        self.events = ConvStem(events, dim, patch)
+        super().__init__(in_channels, dim, patch)
         self.gate = nn.Linear(2 * dim, dim)
         nn.init.zeros_(self.gate.bias)
 
     def gates(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """x [B, 3 + E, S, S] -> (rgb tokens, event tokens, gate), each [B, N, dim]."""
-        rgb, events = self.rgb(x[:, :RGB_PLANES]), self.events(x[:, RGB_PLANES:])
+        rgb, events = self.streams(x)
         return rgb, events, torch.sigmoid(self.gate(torch.cat([rgb, events], dim=2)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -131,7 +154,8 @@ class GatedFusionStem(nn.Module):
         return rgb + gate * events
 
 
-STEMS = {"patch": PatchEmbedding, "conv": ConvStem, "gated": GatedFusionStem}
+STEMS = {"patch": PatchEmbedding, "conv": ConvStem, "dual": DualStem,
+         "gated": GatedFusionStem}
 
 
 class TokenSequence(nn.Module):
@@ -246,8 +270,8 @@ class ERP(nn.Module):
         in_channels: 3 (rgb), 2 (event) or 5 (rgb+event); rgb channels come first.
         size: input side in pixels, a multiple of ``patch`` (160 -> 100 tokens, 640 -> 1600).
         dim, heads, mlp, dropout, patch: the paper's 64, 4, 256, 0.1, 16.
-        stem: "patch" (the paper's linear patch embedding), "conv" (ConvStem) or "gated"
-            (GatedFusionStem; rgb+event inputs only).
+        stem: "patch" (the paper's linear patch embedding), "conv" (ConvStem), or for
+            rgb+event inputs only "dual" (DualStem) or "gated" (GatedFusionStem).
     """
 
     def __init__(self, task: str, in_channels: int, size: int = 160, *, dim: int = 64,

@@ -35,7 +35,7 @@ from typing import Any, Callable
 from .inputs import MODALITIES, parse_size
 
 TASKS = ("nav", "arm")
-STEMS = ("patch", "conv", "gated")     # model.STEMS, named here without importing torch
+STEMS = ("patch", "conv", "dual", "gated")    # model.STEMS, named without importing torch
 
 
 class GridError(ValueError):

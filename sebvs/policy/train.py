@@ -42,7 +42,7 @@ class TrainSettings:
     num_workers: int = 0
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
     device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
-    stem: str = "patch"           # "patch" (the paper's), "conv" or "gated" (model.STEMS)
+    stem: str = "patch"           # "patch" (the paper's), "conv", "dual", "gated" (model.STEMS)
     norm: Normalisation = field(default_factory=Normalisation)
 
 
@@ -56,12 +56,15 @@ def paper_settings(task: str) -> TrainSettings:
     raise ValueError(f"unknown task {task!r} (nav, arm)")
 
 
+FUSION_STEMS = ("dual", "gated")     # a stem per modality: rgb+event inputs only
+
+
 def check_stem(stem: str, modality: str) -> None:
-    """ValueError unless ``stem`` can embed ``modality``'s input: the gated stem fuses rgb
-    with events, so it takes rgb+event alone."""
+    """ValueError unless ``stem`` can embed ``modality``'s input: the dual and gated stems
+    fuse rgb with events, so they take rgb+event alone."""
     check_modality(modality)
-    if stem == "gated" and modality != "rgb+event":
-        raise ValueError(f"the gated stem fuses rgb and event planes: it needs modality "
+    if stem in FUSION_STEMS and modality != "rgb+event":
+        raise ValueError(f"the {stem} stem fuses rgb and event planes: it needs modality "
                          f"rgb+event, not {modality}")
 
 
