@@ -162,8 +162,10 @@ def main(argv=None) -> int:
                     help="its dataset (default: the path its config names)")
     ap.add_argument("--frames", type=int, default=2000,
                     help="about this many validation frames, strided (default 2000)")
-    ap.add_argument("--turn", type=float, default=0.3,
-                    help="|turn command| (of its maximum) from which a frame is 'turning'")
+    ap.add_argument("--turn", type=float, default=0.15,
+                    help="|turn command| (of its maximum) from which a frame is 'turning' "
+                         "(default 0.15: about the upper quartile of the randomised nav "
+                         "recordings' expert)")
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
     ap.add_argument("--figure", type=Path, default=None,
                     help="one example frame per group: RGB, events, the gate map")
