@@ -60,3 +60,13 @@ def test_frame_tokens_report_gate_and_event_share_per_token(tool):
         stem.gate.bias.fill_(-1e4)         # shut: nothing of the events reaches the tokens
     gate, share = tool.frame_tokens(stem, np.random.rand(5, 32, 32).astype(np.float32))
     assert np.allclose(share, 0) and np.allclose(gate, 0)
+
+
+def test_rank_correlation_is_spearman_s(tool):
+    a = np.array([1.0, 2.0, 3.0, 4.0])
+    assert tool.rank_correlation(a, a ** 3) == pytest.approx(1.0)
+    assert tool.rank_correlation(a, -a) == pytest.approx(-1.0)
+    # ties take their mean rank: [0, 0, 1, 1] against 1..4 ranks as [0.5, 0.5, 2.5, 2.5]
+    assert tool.rank_correlation(np.array([0.0, 0.0, 1.0, 1.0]), a) == \
+        pytest.approx(np.corrcoef([0.5, 0.5, 2.5, 2.5], [0, 1, 2, 3])[0, 1])
+    assert tool.rank_correlation(np.zeros(4), a) is None

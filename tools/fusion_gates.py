@@ -12,9 +12,12 @@ the event stem's).
 
 Frames are grouped by scene variant and motion: "turning" when the expert's turn command
 is at least --turn of its maximum, else "straight". Printed per group, medians over
-frames: the gate on target, moving background and still background tokens, and the event
-share. A gate that holds ego-motion back reads lower on moving background tokens than on
-the target's, and lower while turning.
+frames: the gate on target, moving background and still background tokens, the event
+share, and "gate~events", the rank correlation over a frame's background tokens between
+their event mass and their gate (negative: the busier a patch, the less of its events
+pass). A gate that holds ego-motion back reads lower on moving background tokens than on
+the target's, and correlates negatively with event mass. The figure shows, per group, the
+frame with the most events.
 
     python tools/fusion_gates.py out/study_fusion/train/gated/modality=rgb+event__seed=0/nav-rgb+event.pt \\
         [--data DIR] [--frames 2000] [--json FILE] [--figure FILE]
@@ -98,25 +101,49 @@ def collect(pt: Path, data: Path | None, frames: int, turn: float) -> tuple[dict
                 gate, share = frame_tokens(model.embed, x)
                 on_target = target_tokens(np.asarray(ep.truth["bbox"][t]),
                                           np.asarray(ep.truth["image"][t]), cfg["size"], patch)
-                moving = token_event_mass(x[3:], patch) > 0
+                mass = token_event_mass(x[3:], patch)
+                moving = mass > 0
                 motion = "turning" if abs(float(ep.target[t][1])) >= turn else "straight"
-                group = groups.setdefault(f"{variant}, {motion}", {k: {"gate": [], "share": []}
-                                                                   for k in KINDS})
+                key = f"{variant}, {motion}"
+                group = groups.setdefault(key, {**{k: {"gate": [], "share": []} for k in KINDS},
+                                                "gate_vs_events": []})
                 for kind, mask in zip(KINDS, (on_target, ~on_target & moving,
                                               ~on_target & ~moving)):
                     if mask.any():
                         group[kind]["gate"].append(float(gate[mask].mean()))
                         group[kind]["share"].append(float(share[mask].mean()))
-                key = f"{variant}, {motion}"
-                if key not in examples:
-                    examples[key] = (rgb, ev, gate, on_target)
-    return groups, sorted(examples.items())
+                back = ~on_target
+                r = rank_correlation(mass[back], gate[back])
+                if r is not None:
+                    group["gate_vs_events"].append(r)
+                total = float(mass.sum())
+                if key not in examples or total > examples[key][0]:
+                    examples[key] = (total, (rgb, ev, gate, on_target))
+    return groups, [(k, v[1]) for k, v in sorted(examples.items())]
+
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float | None:
+    """Spearman's rank correlation of a and b (average ranks for ties); None when either
+    is constant."""
+    def ranks(x):
+        order = np.argsort(x, kind="stable")
+        r = np.empty(len(x))
+        r[order] = np.arange(len(x))
+        for v in np.unique(x):                  # ties share their mean rank
+            tie = x == v
+            r[tie] = r[tie].mean()
+        return r
+    if len(a) < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return None
+    return float(np.corrcoef(ranks(a), ranks(b))[0, 1])
 
 
 def summarise(groups: dict) -> list[dict]:
     rows = []
     for name in sorted(groups):
-        row = {"group": name, "frames": max(len(v["gate"]) for v in groups[name].values())}
+        row = {"group": name, "frames": max(len(groups[name][k]["gate"]) for k in KINDS)}
+        corr = groups[name]["gate_vs_events"]
+        row["gate_vs_event_mass_rank_corr_p50"] = statistics.median(corr) if corr else None
         for kind in KINDS:
             vals = groups[name][kind]
             key = kind.replace(" ", "_")
@@ -172,14 +199,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     groups, examples = collect(args.checkpoint, args.data, args.frames, args.turn)
     rows = summarise(groups)
-    print(f"{'group':<22}{'frames':>7}" + "".join(f"{k + ' gate':>24}" for k in KINDS)
-          + "".join(f"{k + ' share':>25}" for k in KINDS))
+    heads = [f"{k} gate" for k in KINDS] + [f"{k} share" for k in KINDS] + ["gate~events"]
+    print(f"{'group':<20}{'frames':>7}" + "".join(f"{h:>25}" for h in heads))
     for r in rows:
         cells = [r[f"{k.replace(' ', '_')}_gate_p50"] for k in KINDS]
         cells += [r[f"{k.replace(' ', '_')}_event_share_p50"] for k in KINDS]
-        print(f"{r['group']:<22}{r['frames']:>7}" + "".join(
-            f"{'-' if v is None else f'{v:.3f}':>24}" for v in cells[:3]) + "".join(
-            f"{'-' if v is None else f'{v:.3f}':>25}" for v in cells[3:]))
+        cells.append(r["gate_vs_event_mass_rank_corr_p50"])
+        print(f"{r['group']:<20}{r['frames']:>7}" + "".join(
+            f"{'-' if v is None else f'{v:.3f}':>25}" for v in cells))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"checkpoint": str(args.checkpoint), "turn": args.turn,
