@@ -50,9 +50,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, evaluate_policy, keyed, paired_text, sebvs,
-                           study_parser, write_study)
+from tools.studyio import (METRICS, baseline_rows, baseline_table_head,  # noqa: E402
+                           best_losses, cell_summary, evaluate, evaluate_policy, keyed,
+                           loss_table, paired_text, sebvs, study_parser, write_study)
 
 RECIPE = {"stem": "conv", "lr": 5e-4, "epochs": 5, "patience": 3, "max_frames": 8000,
           "size": 160, "event_clip": 8}
@@ -169,24 +169,14 @@ def summarise(args, losses: dict, policy_eps: dict, reference: dict) -> dict:
 def report(summary: dict) -> str:
     variants = summary["variants"]
     cell_names = sorted({c for v in variants.values() for c in v["cells"]})
-    seeds = sorted({s for v in variants.values() for s in v["best_val_mse"]})
     lines = ["# Event input study (tools/study_event_input.py)", "",
              "Best validation MSE per training seed (same episodes and commands in every "
-             "dataset):", "", "| event input | " + " | ".join(f"seed {s}" for s in seeds)
-             + " |", "|---|" + "---|" * len(seeds)]
-    for v in variants.values():
-        vals = v["best_val_mse"]
-        lines.append(f"| {v['description']} | " + " | ".join(
-            "-" if vals.get(s) is None else f"{vals[s]:.5f}" for s in seeds) + " |")
+             "dataset):", "", *loss_table(variants, "event input")]
     ref = variants.get(summary["reference"], {}).get("description", summary["reference"])
     for metric, label in METRICS:
         lines += ["", f"Closed loop, {label} (%; mean over training seeds and episodes; "
                       f"in brackets: difference to {ref}, sign-test p):", "",
-                  "| row | " + " | ".join(cell_names) + " |",
-                  "|---|" + "---|" * len(cell_names)]
-        for name, rows in summary["reference_rows"].items():
-            lines.append(f"| {name} | " + " | ".join(
-                f"{100 * rows[c][metric]:.1f}" if c in rows else "-" for c in cell_names) + " |")
+                  *baseline_table_head(cell_names, summary["reference_rows"], metric)]
         for v in variants.values():
             out = []
             for c in cell_names:

@@ -23,9 +23,9 @@ Reported per arm: the best validation MSE per training seed (one split per seed,
 in every arm) and, per condition and scenario, the paper's rate, the strict rate and
 episode success, mean over the training seeds, with paired sign tests (over episodes,
 seeds pooled): each fusion against rgb (do the events help?), dual against early (does
-a stem per modality help?) and gated against dual (does the gate?). Nothing is chosen here: arms, seeds, recipe and test seed are
-fixed before the run. Every step is skipped when its output is complete, so an
-interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png.
+a stem per modality help?), gated against early and against dual (does the gate?).
+Nothing is chosen here: arms, seeds, recipe and test seed are fixed before the run. Every
+step is skipped when its output is complete, so an interrupted study resumes. Writes OUT/study.json, OUT/study.md and OUT/study.png.
 
     tools/study_fusion.py --eval-seed 100006 --out out/study_fusion     # docs/results.md
     tools/study_fusion.py --eval-seed 100007 --train-seeds 2,3 \
@@ -39,9 +39,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tools.studyio import (METRICS, baseline_rows, best_losses, cell_summary,  # noqa: E402
-                           evaluate, evaluate_policy, keyed, paired_text, sebvs,
-                           study_parser, write_study)
+from tools.studyio import (METRICS, baseline_rows, baseline_table_head,  # noqa: E402
+                           best_losses, cell_summary, evaluate, evaluate_policy, keyed,
+                           loss_table, paired_text, sebvs, study_parser, write_study)
 
 # arm -> (modality, stem, grid); the grid's stem is the arm's, its other settings shared
 ARMS = {"rgb": ("rgb", "conv", "nav_fusion_conv"),
@@ -112,22 +112,12 @@ def summarise(args, losses: dict, arm_eps: dict, reference: dict) -> dict:
 def report(summary: dict) -> str:
     arms = summary["arms"]
     cell_names = sorted({c for a in arms.values() for c in a["cells"]})
-    seeds = sorted({s for a in arms.values() for s in a["best_val_mse"]})
     lines = ["# Fusion study (tools/study_fusion.py)", "",
              "Best validation MSE per training seed (same data and split per seed):", "",
-             "| arm | " + " | ".join(f"seed {s}" for s in seeds) + " |",
-             "|---|" + "---|" * len(seeds)]
-    for a in arms.values():
-        vals = a["best_val_mse"]
-        lines.append(f"| {a['description']} | " + " | ".join(
-            "-" if vals.get(s) is None else f"{vals[s]:.5f}" for s in seeds) + " |")
+             *loss_table(arms, "arm")]
     for metric, label in METRICS:
         lines += ["", f"Closed loop, {label} (%; mean over training seeds and episodes):", "",
-                  "| row | " + " | ".join(cell_names) + " |",
-                  "|---|" + "---|" * len(cell_names)]
-        for name, rows in summary["reference_rows"].items():
-            lines.append(f"| {name} | " + " | ".join(
-                f"{100 * rows[c][metric]:.1f}" if c in rows else "-" for c in cell_names) + " |")
+                  *baseline_table_head(cell_names, summary["reference_rows"], metric)]
         for a in arms.values():
             lines.append(f"| {a['description']} | " + " | ".join(
                 f"{100 * a['cells'][c][metric]:.1f}" if c in a["cells"] else "-"

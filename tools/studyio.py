@@ -96,6 +96,29 @@ def paired_text(vs: dict | None) -> str:
     return f"{100 * vs['mean_diff']:+.1f}, " + ("p < 0.01" if p < 0.01 else f"p {p:.2f}")
 
 
+def loss_table(rows: dict, first_column: str) -> list[str]:
+    """Markdown lines: one row per entry of ``rows`` (each with "description" and
+    "best_val_mse", {seed: loss or None}), one column per training seed."""
+    seeds = sorted({s for r in rows.values() for s in r["best_val_mse"]})
+    lines = [f"| {first_column} | " + " | ".join(f"seed {s}" for s in seeds) + " |",
+             "|---|" + "---|" * len(seeds)]
+    for r in rows.values():
+        vals = r["best_val_mse"]
+        lines.append(f"| {r['description']} | " + " | ".join(
+            "-" if vals.get(s) is None else f"{vals[s]:.5f}" for s in seeds) + " |")
+    return lines
+
+
+def baseline_table_head(cell_names: list[str], reference_rows: dict, metric: str) -> list[str]:
+    """Markdown lines opening a metric's table: the header (a column per cell) and the
+    expert's and no-action rows (baseline_rows) in %."""
+    lines = ["| row | " + " | ".join(cell_names) + " |", "|---|" + "---|" * len(cell_names)]
+    for name, rows in reference_rows.items():
+        lines.append(f"| {name} | " + " | ".join(
+            f"{100 * rows[c][metric]:.1f}" if c in rows else "-" for c in cell_names) + " |")
+    return lines
+
+
 def cells(episodes: list[dict]) -> dict[tuple[str, str], list[dict]]:
     out: dict = {}
     for ep in episodes:
