@@ -92,3 +92,12 @@ def test_paired_cells_say_below_one_percent_and_nothing_paired():
     assert paired_text({"n": 20, "mean_diff": 0.166, "p_sign": 0.0004}) == "+16.6, p < 0.01"
     assert paired_text({"n": 20, "mean_diff": -0.021, "p_sign": 0.5}) == "-2.1, p 0.50"
     assert paired_text({"n": 0, "mean_diff": 0.0, "p_sign": 1.0}) == paired_text(None) == "-"
+
+
+def test_a_study_refuses_an_eval_seed_outside_the_test_split():
+    import argparse
+
+    from tools.studyio import test_seed
+    assert test_seed("100006") == 100006
+    with pytest.raises(argparse.ArgumentTypeError, match="5 is not a test seed"):
+        test_seed("5")

@@ -19,7 +19,8 @@ pass). A gate that holds ego-motion back reads lower on moving background tokens
 the target's, and correlates negatively with event mass. The figure shows, per group, the
 frame with the most events.
 
-    python tools/fusion_gates.py out/study_fusion/train/gated/modality=rgb+event__seed=0/nav-rgb+event.pt \\
+    python tools/fusion_gates.py \\
+        out/study_fusion/train/gated/modality=rgb+event__seed=0/nav-rgb+event.pt \\
         [--data DIR] [--frames 2000] [--json FILE] [--figure FILE]
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ from sebvs.data.episode import open_episode  # noqa: E402
 from sebvs.policy.checkpoint import load_checkpoint  # noqa: E402
 from sebvs.policy.dataset import load_index  # noqa: E402
 from sebvs.policy.inputs import model_input  # noqa: E402
+from sebvs.policy.model import RGB_PLANES  # noqa: E402
 
 KINDS = ("target", "moving background", "still background")
 
@@ -73,8 +75,8 @@ def frame_tokens(stem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def collect(pt: Path, data: Path | None, frames: int, turn: float) -> tuple[dict, list]:
-    """{group: {kind: {"gate": [...], "share": [...]}}} of per-frame means, and one
-    example frame per group (the first turning or straight frame met)."""
+    """{group: {kind: {"gate": [...], "share": [...]}, "gate_vs_events": [...]}} of
+    per-frame values, and one example frame per group (the one with the most events)."""
     model, cfg, norm = load_checkpoint(pt)
     if cfg.get("stem") != "gated":
         raise SystemExit(f"{pt}: a {cfg.get('stem', 'patch')}-stem checkpoint; this reads the "
@@ -101,7 +103,7 @@ def collect(pt: Path, data: Path | None, frames: int, turn: float) -> tuple[dict
                 gate, share = frame_tokens(model.embed, x)
                 on_target = target_tokens(np.asarray(ep.truth["bbox"][t]),
                                           np.asarray(ep.truth["image"][t]), cfg["size"], patch)
-                mass = token_event_mass(x[3:], patch)
+                mass = token_event_mass(x[RGB_PLANES:], patch)
                 moving = mass > 0
                 motion = "turning" if abs(float(ep.target[t][1])) >= turn else "straight"
                 key = f"{variant}, {motion}"
@@ -116,9 +118,9 @@ def collect(pt: Path, data: Path | None, frames: int, turn: float) -> tuple[dict
                 r = rank_correlation(mass[back], gate[back])
                 if r is not None:
                     group["gate_vs_events"].append(r)
-                total = float(mass.sum())
-                if key not in examples or total > examples[key][0]:
-                    examples[key] = (total, (rgb, ev, gate, on_target))
+                busy = float(mass.sum())
+                if key not in examples or busy > examples[key][0]:
+                    examples[key] = (busy, (rgb, ev, gate, on_target))
     return groups, [(k, v[1]) for k, v in sorted(examples.items())]
 
 

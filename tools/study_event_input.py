@@ -254,7 +254,7 @@ def main() -> int:
         args.conditions, args.scenarios = "nominal", "indoor"
     if len(set(args.variants)) != len(args.variants):
         ap.error("a variant is listed twice")
-    if args.record_seed >= 1000 or args.eval_seed < 100000:
+    if args.record_seed >= 1000:     # (--eval-seed refuses a seed outside the test split)
         ap.error("recording seeds are below 1000 and test seeds 100000 and above "
                  "(sebvs/data/splits.py): keep them apart")
     args.out = args.out.resolve()

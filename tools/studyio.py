@@ -26,6 +26,16 @@ def sebvs(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sebvs.cli", *args], cwd=ROOT, check=True)
 
 
+def test_seed(text: str) -> int:
+    """An --eval-seed: an integer in the test split (sebvs/data/splits.py), else refused."""
+    import argparse
+    seed = int(text)
+    if seed < 100000:
+        raise argparse.ArgumentTypeError(f"{seed} is not a test seed: test seeds are 100000 "
+                                         f"and above (sebvs/data/splits.py)")
+    return seed
+
+
 def study_parser(doc: str, name: str, seed: int, conditions: str):
     """A study's command line with what every study takes: --out (default out/NAME) and
     the closed-loop options: the test seed (default ``seed``), episodes per cell,
@@ -33,10 +43,10 @@ def study_parser(doc: str, name: str, seed: int, conditions: str):
     import argparse
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--out", type=Path, default=ROOT / "out" / name)
-    ap.add_argument("--eval-seed", type=int, default=seed,
+    ap.add_argument("--eval-seed", type=test_seed, default=seed,
                     help=f"test-split topology seed (100000+), one no earlier study used "
-                         f"(100004: window study; 100005: bins study; 100006: fusion "
-                         f"study; default {seed})")
+                         f"(100004: window study; 100005: bins study; 100006 and 100007: "
+                         f"fusion study and its replication; default {seed})")
     ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
     ap.add_argument("--conditions", default=conditions, help=f"default {conditions}")
     ap.add_argument("--scenarios", default="indoor,outdoor")
