@@ -108,7 +108,12 @@ def test_eval_sets_the_accumulator_from_the_checkpoint(tmp_path):
     mine = ['accumulator.representation="histogram"', "accumulator.bins=4",
             "accumulator.window_s=0.4", "camera.luma_scale=1.0"]   # a full-size sensor
     assert sets[-5:] == mine + ["accumulator.window_s=0.2"]   # the user's --set comes last
+    assert plan.event_frame_notes() == []
     # an older checkpoint (no event_frames) leaves the topology's accumulator as written
     (ck / "nav-event.json").write_text(json.dumps({"task": "nav", "modality": "event"}))
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))
     assert [s for s in sets if s.startswith("accumulator.")] == ["accumulator.window_s=0.2"]
+    # ... and the evaluation says so, naming the file and the setting that would match it
+    notes = plan.event_frame_notes()
+    assert len(notes) == 1 and str(ck / "nav-event.json") in notes[0]
+    assert "camera.luma_scale=0.5" in notes[0]

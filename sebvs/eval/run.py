@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import sys
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -287,18 +288,42 @@ class EvalPlan:
             sets += self.event_frame_overrides(run.modality)
         return self.policy_topology, common + sets + self.extra
 
+    def event_frames(self, modality: str) -> dict | None:
+        """The checkpoint config's "event_frames" (how its training data's event frames
+        were made), or None where it has none or cannot be read (the policy actor then
+        names what is wrong with the checkpoint)."""
+        pt, _ = checkpoint_paths(self.checkpoints, self.task, modality)
+        try:
+            frames = read_config(pt).get("event_frames")
+        except (OSError, ValueError):
+            return None
+        if not isinstance(frames, dict) or frames.get("representation") not in (
+                "counts", "histogram"):
+            return None
+        return frames
+
+    def event_frame_notes(self) -> list[str]:
+        """One line per event modality whose checkpoint exists but does not say how its
+        event frames were made (trained before checkpoints kept it): its events then
+        come from the topology as written, which may be another sensor than it learned
+        from (the nav topologies' went from 80 to 160 px on 2026-11-25)."""
+        notes = []
+        for m in self.modalities:
+            _, config = checkpoint_paths(self.checkpoints, self.task, m)
+            if m != "rgb" and config.exists() and self.event_frames(m) is None:
+                notes.append(f"{config} does not say which event frames it was trained on; "
+                             f"they are made as {self.policy_topology.name} says (to match "
+                             f"an older checkpoint: --set camera.luma_scale=0.5 for the "
+                             f"80 px sensor)")
+        return notes
+
     def event_frame_overrides(self, modality: str) -> list[str]:
         """The camera and accumulator made to give the event frames the checkpoint was
         trained on (representation, time bins, window, sensor size: its config's
         "event_frames", taken from the training data). A checkpoint without them gets the
         topology as written; a --set of the user's comes later and wins."""
-        pt, _ = checkpoint_paths(self.checkpoints, self.task, modality)
-        try:
-            frames = read_config(pt).get("event_frames")
-        except (OSError, ValueError):
-            return []       # the policy actor names what is wrong with the checkpoint
-        if not isinstance(frames, dict) or frames.get("representation") not in (
-                "counts", "histogram"):
+        frames = self.event_frames(modality)
+        if frames is None:
             return []
         sets = [f'accumulator.representation={json.dumps(frames.get("representation"))}',
                 f'accumulator.bins={int(frames.get("bins") or 1)}']
@@ -467,6 +492,8 @@ def _write_lines_atomic(path: Path, records: list[dict]) -> None:
 def evaluate(plan: EvalPlan) -> dict:
     plan.validate()
     plan.out.mkdir(parents=True, exist_ok=True)
+    for note in plan.event_frame_notes():
+        print(f"sebvs eval: note: {note}", file=sys.stderr)
     runs = plan.runs()
     bar = tqdm(total=len(runs) * plan.episodes, unit="episode", desc="eval")
     todo = []
