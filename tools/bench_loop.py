@@ -31,7 +31,7 @@ Each part runs --repeats times, one after the other; the headline figures are me
 over the repeats, each repeat's figure is kept beside them. The machine's load average
 is recorded before and after: on a shared machine read the ratios, not the absolutes.
 
-    tools/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only] [--json OUT]
+    tools/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only] [--set A.K=V] [--json OUT]
 """
 from __future__ import annotations
 
@@ -198,6 +198,10 @@ def main() -> int:
                     help="N busy processes beside the loop parts (default 0)")
     ap.add_argument("--loop-only", action="store_true",
                     help="only the closed loop (both variants), no pipeline or record")
+    ap.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
+                    help="a topology override for the loop and record parts (repeatable), "
+                         "e.g. camera.luma_scale=0.5 for the paper's 80 px sensor; the "
+                         "pipeline part keeps its own settings")
     ap.add_argument("--json", metavar="OUT", help="write the results here")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
@@ -206,15 +210,16 @@ def main() -> int:
                             "pipeline_s": pipe_s, "record_episodes": rec_eps,
                             "record_episode_s": rec_s, "dvs_hz": 200.0, "load": args.load,
                             "variants": {k: v for k, v in VARIANTS.items()},
+                            "sets": args.set,
                             "cpus": os.cpu_count(), "statistic": "median over repeats"},
                  "load_avg_before": list(os.getloadavg())}
     loops = {v: [] for v in VARIANTS}
     pipes, recs, notes = [], [], []
-    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v]), loops[v])
-             for v in VARIANTS]
+    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v] + args.set),
+              loops[v]) for v in VARIANTS]
     if not args.loop_only:
         parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
-                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0), recs)]
+                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=args.set), recs)]
     for r in range(repeats):
         # the variants alternate their order, so a slow phase of the machine hits both
         order = parts[:len(VARIANTS)][::-1 if r % 2 else 1] + parts[len(VARIANTS):]

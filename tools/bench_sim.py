@@ -198,9 +198,10 @@ def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None 
 
 
 def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
-                 placement: str | None = None) -> dict:
+                 placement: str | None = None, sets: list[str] = ()) -> dict:
     """`sebvs record topologies/nav_record.toml` at `dvs_hz` into a temporary dataset:
-    simulated seconds per wall second of the whole command (start-up included)."""
+    simulated seconds per wall second of the whole command (start-up included). ``sets``:
+    further --set overrides."""
     import subprocess
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "sebvs.cli", "record",
@@ -210,6 +211,8 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
                "--set", f"sim.render_hz={dvs_hz}", "--set", f"camera.dvs_hz={dvs_hz}"]
         if placement:
             cmd += ["--set", f"topology.placement={json.dumps(placement)}"]
+        for text in sets:
+            cmd += ["--set", text]
         t0 = time.perf_counter()
         done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
         wall = time.perf_counter() - t0
@@ -218,7 +221,7 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
         index = json.loads((Path(tmp) / "ds" / "index.json").read_text())
     frames = sum(e["frames"] for e in index["episodes"])
     return {"topology": f"nav_record (dvs_hz {dvs_hz:g}, recorder paces the sim, HDF5)",
-            "placement": placement or "topology's",
+            "placement": placement or "topology's", "sets": list(sets),
             "real_time_factor": round(episodes * seconds / wall, 2), "episodes": episodes,
             "frames": frames, "wall_s_incl_startup": round(wall, 2)}
 
