@@ -30,9 +30,12 @@ def test_variants_parse_and_keep_the_window_study_s_names(tool):
     counts, bins = tool.Variant.parse("0.1"), tool.Variant.parse("0.4x4")
     assert (counts.window, counts.bins, counts.tag, counts.label) == (0.1, 1, "w0.1", "0.1")
     assert (bins.window, bins.bins, bins.tag, bins.label) == (0.4, 4, "w0.4_h4", "0.4x4")
-    assert counts.accumulator_sets() == ["--set", "accumulator.window_s=0.1"]
+    # the sensor is always set: the nav topologies' own changed (80 px, then 160 px)
+    assert counts.accumulator_sets() == ["--set", "accumulator.window_s=0.1",
+                                         "--set", "camera.luma_scale=0.5"]
     assert bins.accumulator_sets()[2:] == ["--set", 'accumulator.representation="histogram"',
-                                           "--set", "accumulator.bins=4"]
+                                           "--set", "accumulator.bins=4",
+                                           "--set", "camera.luma_scale=0.5"]
     full = tool.Variant.parse("0.4x4@1")
     assert (full.sensor, full.tag, full.label) == (1.0, "w0.4_h4_s1", "0.4x4@1")
     assert full.accumulator_sets()[-2:] == ["--set", "camera.luma_scale=1.0"]

@@ -58,7 +58,10 @@ RECIPE = {"stem": "conv", "lr": 5e-4, "epochs": 5, "patience": 3, "max_frames": 
           "size": 160, "event_clip": 8}
 
 
-SENSOR_SCALE = 0.5      # the topologies' camera.luma_scale: an 80 px sensor for 160 px RGB
+# The studies' default sensor: the paper's (v2e downsample 0.5), an 80 px sensor for 160 px
+# RGB. The nav topologies had it until 2026-11-25 and now render 160 px luma, so every
+# variant sets camera.luma_scale itself: a study reads the same whatever the topology says.
+SENSOR_SCALE = 0.5
 
 
 @dataclass(frozen=True)
@@ -110,9 +113,7 @@ class Variant:
         if self.bins > 1:
             sets += ["--set", 'accumulator.representation="histogram"',
                      "--set", f"accumulator.bins={self.bins}"]
-        if self.sensor != SENSOR_SCALE:
-            sets += ["--set", f"camera.luma_scale={self.sensor}"]
-        return sets
+        return sets + ["--set", f"camera.luma_scale={self.sensor}"]
 
 
 def episodes_in(dataset: Path) -> int:
