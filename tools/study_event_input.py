@@ -4,8 +4,9 @@
 At each control tick the accumulator turns the last `window_s` seconds of events into the
 frame a policy sees: ON/OFF counts (the paper's, and the shipped input: 0.1 s, one control
 period), or a histogram of K time bins per polarity, which keeps when in the window an
-event fired. The emulator's sensor is rendered at half the RGB frame's size (80 px for
-160) and its events fill 2 x 2 blocks of the frame. A variant is one such input, written
+event fired. The study's default sensor is the paper's, half the RGB frame's size (80 px
+for 160), whose events fill 2 x 2 blocks of the frame (the shipped nav policies have used
+a 160 px sensor since this study's third piece). A variant is one such input, written
 WINDOW[xK][@S]: counts or K bins over WINDOW seconds, from a sensor S times the frame's
 size (default 0.5): 0.1, 0.4, 0.1x4, 0.1@1. This study changes the input and keeps
 everything else:
