@@ -1,24 +1,18 @@
 """tools/compare_evals.py: two evaluations pair on (modality, condition, scenario, episode
 seed); evaluations of other episodes, and files that are not results.json, are refused by
 name; a cell only one side holds is named, not paired."""
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "compare_evals.py"
+from tests.tools_loader import tool_module
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("compare_evals", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with tool_module("compare_evals") as module:
+        yield module
 
 
 def results(rates: dict, seed: int = 100008, modality: str = "event") -> dict:

@@ -1,7 +1,5 @@
 """tools/fusion_gates.py: which tokens cover the target, how much event mass a patch holds,
 and a checkpoint without a gate is refused by name."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,16 +8,13 @@ import torch
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.inputs import Normalisation
 from sebvs.policy.model import ERP
-
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "fusion_gates.py"
+from tests.tools_loader import tool_module
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("fusion_gates", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    with tool_module("fusion_gates") as module:
+        yield module
 
 
 def test_target_tokens_are_the_patches_the_box_overlaps(tool):

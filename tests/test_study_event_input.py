@@ -2,23 +2,17 @@
 variant's on the same (training seed, condition, scenario, episode seed), its report shows
 the differences and the baseline rows, and its variants parse and name their outputs."""
 import argparse
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "study_event_input.py"
+from tests.tools_loader import tool_module
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("study_event_input", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module     # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with tool_module("study_event_input") as module:
+        yield module
 
 
 def episode(modality, condition, seed, success, strict=0.0):

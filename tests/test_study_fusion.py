@@ -2,23 +2,17 @@
 fusion, on the same (training seed, condition, scenario, episode seed); the report shows
 the paired differences beside the baseline rows; the arms name their sweep points."""
 import argparse
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "study_fusion.py"
+from tests.tools_loader import TOOLS, tool_module
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("study_fusion", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    with tool_module("study_fusion") as module:
+        yield module
 
 
 def episode(modality, seed, success, condition="fast"):
@@ -73,12 +67,12 @@ def test_arms_find_their_sweep_points(tool):
     assert tool.checkpoint_dir(args, "gated", 0) == \
         Path("/s/train/gated/modality=rgb+event__seed=0")
     for arm, (modality, stem, grid) in tool.ARMS.items():
-        text = (TOOL.parent / "grids" / f"{grid}.toml").read_text()
+        text = (TOOLS / "grids" / f"{grid}.toml").read_text()
         assert f'stem = "{stem}"' in text and f'"{modality}"' in text
 
 
 def test_other_training_seeds_rewrite_only_the_seed_axis(tool, tmp_path):
-    grid = TOOL.parent / "grids" / "nav_fusion_gated.toml"
+    grid = TOOLS / "grids" / "nav_fusion_gated.toml"
     assert tool.grid_with_seeds(grid, None, tmp_path) == grid
     copy = tool.grid_with_seeds(grid, [2, 3, 4], tmp_path)
     assert copy.parent == tmp_path / "grids"
