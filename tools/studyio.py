@@ -46,7 +46,8 @@ def study_parser(doc: str, name: str, seed: int, conditions: str):
     ap.add_argument("--eval-seed", type=test_seed, default=seed,
                     help=f"test-split topology seed (100000+), one no earlier study used "
                          f"(100004: window study; 100005: bins study; 100006 and 100007: "
-                         f"fusion study and its replication; default {seed})")
+                         f"fusion study and its replication; 100008: the shipped nav "
+                         f"checkpoints; 100009: bins and sensor together; default {seed})")
     ap.add_argument("--eval-episodes", type=int, default=10, help="episodes per cell")
     ap.add_argument("--conditions", default=conditions, help=f"default {conditions}")
     ap.add_argument("--scenarios", default="indoor,outdoor")
