@@ -25,6 +25,15 @@ Clock (DESIGN.md section 3):
             the ticks that missed it and times every action (sebvs/runtime/deadlines.py):
             stats "deadlines", telemetry "deadline_miss" and, per episode, "deadlines".
 
+Execution noise (`command_noise`, off by default): each command the sim applies gets zero-mean
+Gaussian noise, std per command dimension, drawn afresh per applied command from the
+episode's seed (a stream of its own: lockstep runs stay bit-for-bit reproducible). This is
+DART-style recording (Laskey et al. 2017): the robot is pushed off the expert's path and
+the recorder keeps the expert's clean command as the label, so a policy can neither read
+the label off the robot's own motion (the ego-motion events of the command it is executing)
+nor meet states that the expert never left in the data. The noisy command is clipped by the
+scene like any other (nav: [-1, 1]).
+
 A command with NaN/inf (or the wrong shape) is rejected: error in the log, telemetry
 "command_rejected", the last good command stays. Divergence (sebvs.sim.stability) ends the
 episode with its reason before the bad state is published: NaN never leaves this actor.
@@ -40,12 +49,16 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
+from sebvs.runtime.params import coerce_param, param_fields
 from sebvs.runtime.deadlines import DeadlineMonitor
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
 from sebvs.sim.randomise import SceneRandomiser
 from sebvs.sim.stability import StabilityMonitor
 
 import mujoco  # noqa: E402  (after sebvs.sim on purpose)
+
+
+NOISE_STREAM = 0x6e6f697365   # "noise": the execution noise's seed stream, beside the scene's
 
 
 def episode_seed(seed: int, episode: int) -> int:
@@ -87,6 +100,9 @@ class Sim(Actor):
         # lockstep: give up waiting, keep last command
         action_timeout_s: Annotated[float, Range(gt=0)] = 10.0
         check_every: Annotated[int, Range(ge=1)] = 1        # stability check period, steps
+        # std of the Gaussian noise added to every applied command, one per command
+        # dimension (nav: [v, w]); [] = none. For recording only (module docstring)
+        command_noise: list[Annotated[float, Range(ge=0, le=10)]] = field(default_factory=list)
         # after the last episode, before ending the run: consumers drain what is queued
         linger_s: Annotated[float, Range(ge=0, le=3600)] = 0.5
 
@@ -121,6 +137,8 @@ class Sim(Actor):
             self.log.info("sim: each episode draws %s", self.randomiser.describe())
         self.config: dict = {}
         self._build(base)
+        self._check_noise(p.command_noise)
+        self.noise_rng = np.random.default_rng(0)   # reseeded per episode
         self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
         self.deadlines = DeadlineMonitor(round(1e9 / (p.control_hz * p.realtime_factor))) \
             if self.clock == "realtime" and "action" in self.connected else None
@@ -131,7 +149,7 @@ class Sim(Actor):
         self.tick = -1
         self.t_offset = 0.0                 # t_sim at the current episode's start
         self.counts = {"steps": 0, "episodes": 0, "rejected": 0, "action_timeouts": 0,
-                       "stale_actions": 0, "diverged": 0}
+                       "stale_actions": 0, "diverged": 0, "noised": 0}
         self.log.info("sim: scene %s %s, integrator %s, dt %g s, %d steps/control, "
                       "%d steps/state, lockstep wait %s", p.scene, p.config, p.integrator,
                       self.dt, self.steps_per_control, self.steps_per_render,
@@ -175,10 +193,31 @@ class Sim(Actor):
                        self.command.tolist())
         self.telemetry("command_rejected", tick=tick, reason=why, command=repr(shown))
 
+    def _check_noise(self, std: list) -> None:
+        if std and len(std) != self.scene.command_dim:
+            raise ValueError(f"sim: command_noise has {len(std)} values, the {self.params.scene} "
+                             f"command has {self.scene.command_dim} (one std per dimension)")
+
+    async def control(self, key: str, value) -> dict:
+        """`sebvs ctl RUN sim set command_noise=[0.1,0.05]` applies from the next command;
+        a list of the wrong length is refused and the running one stays."""
+        if key == "command_noise":
+            self._check_noise(coerce_param(param_fields(type(self.params))[key], value,
+                                           where=f"actor {self.name!r} key {key!r}"))
+        return await super().control(key, value)
+
+    def _executed(self, cmd: np.ndarray) -> np.ndarray:
+        """The command as executed: plus the execution noise, when there is any."""
+        std = self.params.command_noise
+        if not std:
+            return cmd
+        self.counts["noised"] += 1
+        return cmd + self.noise_rng.normal(0.0, 1.0, cmd.shape) * np.asarray(std)
+
     def _apply(self, cmd: np.ndarray, tick: int) -> None:
         saved = self.data.ctrl.copy()
         try:
-            self.scene.apply_command(self.model, self.data, cmd)
+            self.scene.apply_command(self.model, self.data, self._executed(cmd))
         except ValueError as exc:
             self.data.ctrl[:] = saved               # a scene must not half-apply a command
             self._reject(cmd, tick, str(exc))
@@ -233,6 +272,7 @@ class Sim(Actor):
             self._build(self.randomiser.draw(seed))
         p, model, data, scene = self.params, self.model, self.data, self.scene
         scene.reset(model, data, np.random.default_rng(seed))
+        self.noise_rng = np.random.default_rng([seed, NOISE_STREAM])
         self.monitor.reset(data)
         self.command = scene.idle_command()
         self.pending = None

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from actors.camera import Camera
-from actors.sim import Sim, episode_seed
+from actors.sim import NOISE_STREAM, Sim, episode_seed
 from sebvs.runtime import Message
 from sebvs.runtime.supervisor import run_topology
 
@@ -104,6 +104,59 @@ def test_bad_commands_rejected_last_good_kept():
         np.testing.assert_array_equal(sim.data.ctrl, good)
     assert sim.counts["rejected"] == 3
     assert [k for k, _ in node.events].count("command_rejected") == 3
+
+
+def _applied(sim, commands):
+    """Apply `commands` one per realtime tick -> the nav ctrl the scene got for each."""
+    scale = np.array([sim.scene.config["v_max"], sim.scene.config["w_max"]], float)
+    out = []
+    for i, cmd in enumerate(commands):
+        asyncio.run(sim.on_action(Message(topic="t", source="x", output="action", seq=i,
+                                          t_sim=0.0, tick=i, stamps=[], meta={},
+                                          arrays={"action": np.asarray(cmd, float)})))
+        out.append(sim.data.ctrl[:2] / scale)
+    return np.array(out)
+
+
+def test_command_noise_is_zero_mean_with_its_std_and_reproducible_from_the_seed():
+    cmd = [[0.2, -0.1]] * 2000
+    clean, _ = make_sim(clock="realtime", connected=frozenset({"action"}))
+    np.testing.assert_allclose(_applied(clean, cmd[:5]), cmd[:5])       # off: as commanded
+    runs = []
+    for _ in range(2):
+        sim, _ = make_sim(clock="realtime", connected=frozenset({"action"}),
+                          command_noise=[0.1, 0.05])
+        sim.noise_rng = np.random.default_rng([episode_seed(7, 0), NOISE_STREAM])
+        runs.append(_applied(sim, cmd))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    err = runs[0] - np.array(cmd)
+    np.testing.assert_allclose(err.std(axis=0), [0.1, 0.05], rtol=0.08)
+    np.testing.assert_allclose(err.mean(axis=0), [0.0, 0.0], atol=0.01)
+    assert sim.counts["noised"] == 2000
+    assert sim.command.tolist() == [0.2, -0.1]       # the clean command is what is kept
+
+
+def test_command_noise_clipped_by_the_scene_and_drawn_per_episode_seed():
+    sim, _ = make_sim(clock="realtime", connected=frozenset({"action"}), command_noise=[5.0, 5.0])
+    assert np.abs(_applied(sim, [[0.9, -0.9]] * 50)).max() <= 1.0 + 1e-12
+    sim, node = make_sim(episodes=2, command_noise=[0.1, 0.1])
+    asyncio.run(sim.run())             # lockstep without an action wired: no command, no draw
+    assert sim.counts["noised"] == 0
+    # reseeded from the last episode's seed, its own stream (not the scene's)
+    assert sim.noise_rng.normal() == \
+        np.random.default_rng([episode_seed(7, 1), NOISE_STREAM]).normal()
+
+
+def test_command_noise_of_the_wrong_length_refused_at_setup_and_at_set():
+    with pytest.raises(ValueError, match="command_noise has 3 values.*has 2"):
+        make_sim(command_noise=[0.1, 0.1, 0.1])
+    sim, _ = make_sim(command_noise=[0.1, 0.1])
+    with pytest.raises(ValueError, match="command_noise has 1 values"):
+        asyncio.run(sim.control("command_noise", [0.3]))
+    assert sim.params.command_noise == [0.1, 0.1]
+    with pytest.raises(ValueError):
+        asyncio.run(sim.control("command_noise", [-0.1, 0.1]))     # a std is >= 0
+    assert asyncio.run(sim.control("command_noise", [0.2, 0.0])) == {"command_noise": [0.2, 0.0]}
 
 
 def test_camera_renders_consumed_outputs_and_luma_on_every_control_sample():
