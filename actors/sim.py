@@ -49,7 +49,6 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
-from sebvs.runtime.params import coerce_param, param_fields
 from sebvs.runtime.deadlines import DeadlineMonitor
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
 from sebvs.sim.randomise import SceneRandomiser
@@ -201,10 +200,15 @@ class Sim(Actor):
     async def control(self, key: str, value) -> dict:
         """`sebvs ctl RUN sim set command_noise=[0.1,0.05]` applies from the next command;
         a list of the wrong length is refused and the running one stays."""
+        old = getattr(self.params, key, None)
+        result = await super().control(key, value)     # type and Range checked there
         if key == "command_noise":
-            self._check_noise(coerce_param(param_fields(type(self.params))[key], value,
-                                           where=f"actor {self.name!r} key {key!r}"))
-        return await super().control(key, value)
+            try:
+                self._check_noise(self.params.command_noise)
+            except ValueError:
+                self.params.command_noise = old
+                raise
+        return result
 
     def _executed(self, cmd: np.ndarray) -> np.ndarray:
         """The command as executed: plus the execution noise, when there is any."""
