@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
 from sebvs.runtime import Actor, Message, Range
+from sebvs.runtime.topology import TopologyError, apply_override
 
 STREAMS = ("rgb", "events", "raw", "action")
 # file attribute <- accumulator meta key (either spelling)
@@ -75,6 +76,9 @@ class Recorder(Actor):
         compression: Literal["lzf", "gzip", "none"] = "lzf"
         task: Literal["auto", "nav", "arm"] = "auto"   # auto: from the action's array name
         topology: str = ""               # topology file, stored as an attribute (sebvs record sets it)
+        # the --set overrides the run was started with (sebvs record sets them): applied to
+        # the file's content before it is stored, so the attributes say what ran
+        overrides: list = field(default_factory=list)
         # ticks waiting for a stream before they count as lost
         max_pending: Annotated[int, Range(ge=1, le=100_000)] = 256
         # wait this long after an end marker for its last rows
@@ -92,8 +96,12 @@ class Recorder(Actor):
         topo = {}
         if p.topology:
             try:
-                topo = {"file": p.topology, "content": tomllib.loads(Path(p.topology).read_text())}
-            except (OSError, tomllib.TOMLDecodeError) as exc:
+                content = tomllib.loads(Path(p.topology).read_text())
+                for text in p.overrides:
+                    apply_override(content, str(text))
+                topo = {"file": p.topology, "content": content,
+                        "overrides": [str(t) for t in p.overrides]}
+            except (OSError, tomllib.TOMLDecodeError, TopologyError) as exc:
                 topo = {"file": p.topology, "error": str(exc)}
         base = {"topology": topo, "streams": sorted(self.streams)}
         emulator = emulator_params(topo.get("content", {}))

@@ -146,6 +146,20 @@ def test_sebvs_record_runs_to_n_episodes_and_resumes(tmp_path, capsys):
     assert check_dataset(out).ok
 
 
+def test_recorded_topology_attribute_has_the_runs_overrides_applied(tmp_path, capsys):
+    """--set changes what runs, so the stored topology (and the emulator settings read from
+    it) must show the change, not the file as it lies on disk."""
+    out = tmp_path / "ds"
+    topo = topology(tmp_path, tmp_path / "ignored", frames=8, episodes=0)
+    assert main(["record", str(topo), "--episodes", "1", "--out", str(out), "--runs-dir",
+                 str(tmp_path), "--quiet", "--timeout", "20", "--set", "source.frames=5"]) == 0
+    with open_episode(DatasetIndex(out).episode_paths()[0]) as ep:
+        stored = ep.attrs["topology"]
+        assert len(ep) == 5
+    assert stored["content"]["actors"]["source"]["frames"] == 5
+    assert stored["overrides"] == ["source.frames=5"]
+
+
 def test_kill_9_of_the_whole_run_keeps_finished_episodes(tmp_path):
     """`sebvs record` and every actor killed at once: indexed episodes stay whole."""
     out, runs = tmp_path / "ds", tmp_path / "runs"

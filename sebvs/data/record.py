@@ -103,7 +103,8 @@ def cmd_record(args) -> int:
     out = Path(args.out)
     overrides = [*args.set, f"{name}.out={json.dumps(str(out))}",
                  f"{name}.episodes={args.episodes}",
-                 f"{name}.topology={json.dumps(str(Path(args.topology).resolve()))}"]
+                 f"{name}.topology={json.dumps(str(Path(args.topology).resolve()))}",
+                 f"{name}.overrides={json.dumps(list(args.set))}"]
     topo = load_topology(args.topology, overrides)
     # refused outright, with no flag to allow it: a test split that one flag can record from
     # is held out only by convention, and nothing a recording needs lies in that range

@@ -194,7 +194,8 @@ def _subtable(table: dict, key: str, text: str) -> dict:
     return sub
 
 
-def _apply_override(doc: dict, text: str) -> None:
+def apply_override(doc: dict, text: str) -> None:
+    """Apply one ``--set actor.key=value`` to a parsed topology document, in place."""
     parts, value = parse_override(text)
     if parts[0] in ("topology", "hosts"):
         table = _subtable(doc, parts[0], text)
@@ -309,7 +310,7 @@ def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topolo
     except RecursionError:
         raise TopologyError(f"{path}: arrays or tables nested too deeply") from None
     for text in overrides:
-        _apply_override(doc, text)
+        apply_override(doc, text)
     return build_topology(doc, path)
 
 
