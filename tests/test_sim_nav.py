@@ -52,6 +52,35 @@ def test_mjcf_is_deterministic_and_fast_to_render():
         assert {model.camera(i).name for i in range(model.ncam)} == {"front", "overview"}
 
 
+def test_floor_and_target_colour_keys():
+    """The default scene is the one every dataset was recorded in (its MJCF must not move);
+    plain swaps the checker for its mean grey; target_rgb colours the cube."""
+    default = make_scene("nav").mjcf()
+    assert make_scene("nav", floor="checker", target_rgb=[0.9, 0.15, 0.1]).mjcf() == default
+    assert 'builtin="checker" rgb1="0.55 0.55 0.5" rgb2="0.3 0.3 0.32"' in default
+    assert 'rgba="0.9 0.15 0.1 1"' in default
+    plain = make_scene("nav", floor="plain", target_rgb=(1, 0.5, 0.45)).mjcf()
+    assert 'builtin="flat" rgb1="0.425 0.425 0.41" rgb2="0.425 0.425 0.41"' in plain
+    assert 'rgba="1 0.5 0.45 1"' in plain
+    for bad in ([1, 0, 0, 1], [1.5, 0, 0], "red", [True, 0, 0]):
+        with pytest.raises(ValueError, match="target_rgb"):
+            make_scene("nav", target_rgb=bad)
+    with pytest.raises(ValueError, match="floor"):
+        make_scene("nav", floor="carpet")
+
+
+def test_plain_floor_has_no_checker_edges():
+    edges = {}
+    for floor in ("checker", "plain"):
+        scene, model, data = build(floor=floor)
+        scene.kinematics(model, data)
+        with FrameRenderer(model, 64, 64) as r:
+            r.update(data, "front")
+            rows = r.rgb()[40:].astype(float).mean(axis=2)     # the floor below the horizon
+        edges[floor] = np.abs(np.diff(rows, axis=1)).mean()   # the light falls off smoothly
+    assert edges["plain"] < 0.6 * edges["checker"], edges
+
+
 def test_integrator_and_timestep_applied():
     _, model, _ = build(integrator="rk4", timestep=0.004)
     assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4

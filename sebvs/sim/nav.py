@@ -40,6 +40,8 @@ ROBOT_MASS = MASS + 4 * 0.5 + 0.1   # chassis, four wheels, mast (as in the MJCF
 ROBOT_INERTIA_Z = 0.52 # kg m^2, bounds the robot's largest principal moment (tested)
 HALF = (0.25, 0.20, 0.06)   # chassis half sizes, m
 CUBE = 0.1             # target half side, m
+CHECKER = ((0.55, 0.55, 0.5), (0.3, 0.3, 0.32))   # the indoor floor's two greys
+FLOORS = ("checker", "plain")
 MU = 0.8               # tyre-ground friction, for the traction limits
 G = 9.81
 
@@ -48,6 +50,11 @@ class NavScene(Scene):
     """Four-wheel diff-drive robot + moving cube. Config keys (defaults):
 
     variant       "indoor" (walled room, checker floor) | "outdoor" (ground, sky, sun)
+    floor         "checker" | "plain": the indoor floor's texture; plain is the checker's two
+                  greys replaced by their mean, its sparse light marks kept (the outdoor
+                  ground has no checker and ignores it)
+    target_rgb    [r, g, b] in [0, 1], the cube's colour ([0.9, 0.15, 0.1]); the expert's
+                  colour detector looks for red, so keep the hue red
     target_speed  "slow" | "nominal" | "fast"  (0.25 / 0.5 / 1.0 m/s nominal)
     lighting      "nominal" | "low" | "flicker" (light intensity modulated at flicker_hz)
     flicker_hz    float, 10.0
@@ -66,14 +73,16 @@ class NavScene(Scene):
     task = "nav"
     command_dim = 2
     cameras = ("front", "overview")
-    defaults = {**Scene.defaults, "variant": "indoor", "target_speed": "nominal",
+    defaults = {**Scene.defaults, "variant": "indoor", "floor": "checker",
+                "target_rgb": (0.9, 0.15, 0.1), "target_speed": "nominal",
                 "lighting": "nominal", "flicker_hz": 10.0, "rgb_blur": 0, "width": 160,
                 "height": 160, "fovy": 70.0, "v_max": 1.5, "w_max": 2.0, "servo_gain": 1.0,
                 "arena": 6.0, "contact_timeconst": 0.0}
 
     def validate(self) -> None:
         c = self.config
-        choices = {"variant": VARIANTS, "target_speed": tuple(SPEEDS), "lighting": LIGHTING}
+        choices = {"variant": VARIANTS, "floor": FLOORS, "target_speed": tuple(SPEEDS),
+                   "lighting": LIGHTING}
         for key, allowed in choices.items():
             if c[key] not in allowed:
                 raise ValueError(f"nav scene: {key} {c[key]!r} is not one of {allowed}")
@@ -93,6 +102,12 @@ class NavScene(Scene):
             raise ValueError(f"nav scene: contact_timeconst must be >= 0, got {tc!r}")
         if c["arena"] < 2.0:
             raise ValueError("nav scene: arena must be >= 2 m")
+        rgb = c["target_rgb"]
+        if not (isinstance(rgb, (list, tuple)) and len(rgb) == 3 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1
+                for x in rgb)):
+            raise ValueError(f"nav scene: target_rgb must be three numbers in [0, 1], "
+                             f"got {rgb!r}")
 
     # ------------------------------------------------------------------ model
     def mjcf(self) -> str:
@@ -123,8 +138,14 @@ class NavScene(Scene):
            specular="0.1 0.1 0.1" attenuation="1 0 0" castshadow="{shadow}"/>
     <light name="fill" pos="{a / 2} {-a / 2} 3" dir="-0.3 0.3 -1" diffuse="{key / 2} {key / 2} {key / 2}"
            specular="0 0 0" castshadow="false"/>"""
-            assets = """
-    <texture name="floor" type="2d" builtin="checker" rgb1="0.55 0.55 0.5" rgb2="0.3 0.3 0.32"
+            # plain: one grey, the checker's mean, so only the marks and the target move
+            light, dark = CHECKER
+            mean = tuple((a + b) / 2 for a, b in zip(light, dark))
+            rgb1, rgb2 = (light, dark) if c["floor"] == "checker" else (mean, mean)
+            floor_builtin = "checker" if c["floor"] == "checker" else "flat"
+            floor_rgb1, floor_rgb2 = (" ".join(f"{x:g}" for x in v) for v in (rgb1, rgb2))
+            assets = f"""
+    <texture name="floor" type="2d" builtin="{floor_builtin}" rgb1="{floor_rgb1}" rgb2="{floor_rgb2}"
              width="256" height="256" mark="random" random="0.02" markrgb="0.8 0.8 0.8"/>
     <material name="floor" texture="floor" texrepeat="12 12"/>
     <texture name="wall" type="2d" builtin="gradient" rgb1="0.75 0.72 0.65" rgb2="0.45 0.45 0.5"
@@ -148,6 +169,7 @@ class NavScene(Scene):
             f'euler="1.5708 0 0" rgba="0.08 0.08 0.08 1" contype="0" conaffinity="0" mass="0.5"/>'
             for i, (x, y) in enumerate(((0.17, 0.23), (0.17, -0.23), (-0.17, 0.23),
                                         (-0.17, -0.23))))
+        target_rgba = " ".join(f"{float(x):g}" for x in c["target_rgb"]) + " 1"
         return f"""{self.mjcf_head(f"sebvs_nav_{c['variant']}")}
   <asset>{assets}
   </asset>
@@ -165,7 +187,7 @@ class NavScene(Scene):
       <camera name="front" pos="0.24 0 0.18" xyaxes="0 -1 0 0 0 1" fovy="{float(c['fovy'])}"/>
     </body>
     <body name="target" mocap="true" pos="2.5 0 {CUBE}">
-      <geom name="target" type="box" size="{CUBE} {CUBE} {CUBE}" rgba="0.9 0.15 0.1 1"
+      <geom name="target" type="box" size="{CUBE} {CUBE} {CUBE}" rgba="{target_rgba}"
             contype="0" conaffinity="0"/>
     </body>
     <camera name="overview" pos="0 {-a * 1.1} {a}" xyaxes="1 0 0 0 0.7 0.7" fovy="60"/>
