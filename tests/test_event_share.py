@@ -63,3 +63,26 @@ def test_the_tool_groups_by_scene_setting(tmp_path, capsys):
     assert rows["variant=outdoor"]["target_event_share_p50"] == 20 / 24
     assert abs(rows["variant=outdoor"]["density_ratio_p50"] - (20 / 24) / (4 / 1024)) < 1e-6
     assert "variant=outdoor" in capsys.readouterr().out
+    # a 2 px box is too narrow to measure an edge on, and there is no emulator attribute
+    assert rows["variant=indoor"]["edge_contrast_p50"] is None
+    assert rows["variant=indoor"]["frames_under_threshold"] is None
+
+
+def test_edge_contrast_is_in_the_emulators_lin_log_units():
+    tool = _load_tool()
+    rgb = np.full((40, 40, 3), 100, np.uint8)
+    rgb[10:20, 10:20] = 150                                 # the target, 1.5x as bright
+    image = np.array([80.0, 80.0])                          # truth at twice the frame's size
+    box = np.array([20.0, 20.0, 40.0, 40.0])
+    assert abs(tool.edge_contrast(rgb, box, image) - np.log(1.5)) < 1e-5
+    rgb[10:20, 7:10] = 150                                  # same brightness on the left
+    assert abs(tool.edge_contrast(rgb, box, image) - np.log(1.5)) < 1e-5   # the right edge
+    rgb[10:20, 20:23] = 150
+    assert tool.edge_contrast(rgb, box, image) < 1e-6       # no edge on either side
+    # under 20 DN the sensor is linear: 10 against 5 DN is 0.15 log units, not ln 2
+    dim = np.full((40, 40, 3), 5, np.uint8)
+    dim[10:20, 10:20] = 10
+    assert abs(tool.edge_contrast(dim, box, image) - 5 * np.log(20) / 20) < 1e-5
+    # a box at the frame's edge, or too narrow, has no side bands to measure
+    assert np.isnan(tool.edge_contrast(rgb, np.array([0.0, 20.0, 20.0, 40.0]), image))
+    assert np.isnan(tool.edge_contrast(rgb, np.array([20.0, 20.0, 24.0, 40.0]), image))

@@ -9,6 +9,14 @@ target's event density over the image's: 1 means the target stands out no more t
 random patch of the same size; the event input carries the target only where it is well
 above 1.
 
+It also measures why a target makes few events: its edge contrast in the RGB frame, in the
+emulator's lin-log units (sebvs.dvs.emulator.linlog of the frame's 601 luma, which is what
+the camera hands the emulator): the mean inside the box (less a 1 px rim) against the mean
+of a 2 px band beyond each side edge, 1 px out, the larger of the two sides (a target
+crossing the image horizontally fires on its side edges). A pixel fires only when its
+level moves by the threshold (the episode's emulator pos_thres / neg_thres), so an edge
+of lower contrast makes no events however fast it moves.
+
     python tools/event_share.py datasets/nav_rand [--json out.json] [--by variant,lighting]
                                 [--figure shares.png]
 
@@ -25,11 +33,13 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sebvs.data.episode import open_episode  # noqa: E402
+from sebvs.dvs.emulator import linlog  # noqa: E402
 from sebvs.data.stats import episode_files  # noqa: E402
 
 
@@ -56,6 +66,26 @@ def frame_shares(event_frame: np.ndarray, bbox: np.ndarray, image: np.ndarray,
     return total, share, area
 
 
+def edge_contrast(rgb: np.ndarray, bbox: np.ndarray, image: np.ndarray) -> float:
+    """The target's side-edge contrast in lin-log units (module docstring), or NaN where
+    the box is narrower than 4 px or its side bands leave the frame.
+
+    rgb [H, W, 3] uint8; bbox (u0, v0, u1, v1) px in the truth's image of size (w, h).
+    """
+    h, w = rgb.shape[:2]
+    sx, sy = w / image[0], h / image[1]
+    u0, u1 = int(round(bbox[0] * sx)), int(round(bbox[2] * sx))
+    v0, v1 = int(round(bbox[1] * sy)), int(round(bbox[3] * sy))
+    if u1 - u0 < 4 or v1 - v0 < 3 or u0 < 3 or u1 > w - 3 or v0 < 0 or v1 > h:
+        return float("nan")
+    level = linlog(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY))
+    rows = slice(v0 + 1, v1 - 1)
+    inside = float(level[rows, u0 + 1:u1 - 1].mean())
+    left = float(level[rows, u0 - 3:u0 - 1].mean())
+    right = float(level[rows, u1 + 1:u1 + 3].mean())
+    return max(abs(inside - left), abs(inside - right))
+
+
 def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, list]]:
     groups: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for name in episode_files(root):
@@ -73,7 +103,12 @@ def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, lis
             idx = np.flatnonzero(ok)
             total, share, area = frame_shares(np.asarray(ep.event_frame[:])[idx], bbox[idx],
                                               np.asarray(ep.truth["image"][:])[idx], margin)
+            rgb, image = ep.rgb, np.asarray(ep.truth["image"][:])
+            emulator = (ep.attrs.get("emulator") or {}).get("resolved", {})
+            thresholds = [float(emulator.get(k, "nan")) for k in ("pos_thres", "neg_thres")]
             g = groups[key]
+            g["contrast"] += [edge_contrast(np.asarray(rgb[k]), bbox[k], image[k]) for k in idx]
+            g["threshold"].append(min(thresholds))
             g["events"] += total.tolist()
             g["share"] += share.tolist()
             g["area"] += area.tolist()
@@ -144,13 +179,22 @@ def summarise(groups: dict) -> list[dict]:
         share, area = np.asarray(g["share"], float), np.asarray(g["area"], float)
         ratio = share / np.maximum(area, 1e-9)
         has = np.isfinite(share)
+        contrast = np.asarray(g["contrast"], float)
+        measured = np.isfinite(contrast)
+        threshold = float(np.nanmin(g["threshold"])) if np.isfinite(g["threshold"]).any() \
+            else None
         rows.append({"group": key, "episodes": len(g["episodes"]), "frames": len(share),
                      "events_per_frame_p50": float(np.median(g["events"])),
                      "target_event_share_p50": float(np.nanmedian(share)) if has.any() else None,
                      "target_area_share_p50": float(np.median(area)),
                      "density_ratio_p50": float(np.nanmedian(ratio)) if has.any() else None,
                      "frames_without_target_events": float(np.mean(share[has] == 0))
-                     if has.any() else None})
+                     if has.any() else None,
+                     "edge_contrast_p50": float(np.median(contrast[measured]))
+                     if measured.any() else None,
+                     "emulator_threshold": threshold,
+                     "frames_under_threshold": float(np.mean(contrast[measured] < threshold))
+                     if measured.any() and threshold is not None else None})
     return rows
 
 
@@ -174,13 +218,15 @@ def main(argv=None) -> int:
     by = [k for k in args.by.split(",") if k]
     rows = summarise(collect(args.dataset, by, args.margin))
     print(f"{'group':<38} {'eps':>4} {'frames':>7} {'events/frame':>12} "
-          f"{'target share':>12} {'box area':>9} {'density x':>9} {'no target ev':>12}")
+          f"{'target share':>12} {'box area':>9} {'density x':>9} {'no target ev':>12} "
+          f"{'contrast':>8} {'< thres':>7}")
     for r in rows:
         f = lambda x, fmt: "-" if x is None else format(x, fmt)   # noqa: E731
         print(f"{r['group']:<38} {r['episodes']:>4} {r['frames']:>7} "
               f"{r['events_per_frame_p50']:>12.0f} {f(r['target_event_share_p50'], '.3f'):>12} "
               f"{r['target_area_share_p50']:>9.3f} {f(r['density_ratio_p50'], '.1f'):>9} "
-              f"{f(r['frames_without_target_events'], '.2f'):>12}")
+              f"{f(r['frames_without_target_events'], '.2f'):>12} "
+              f"{f(r['edge_contrast_p50'], '.2f'):>8} {f(r['frames_under_threshold'], '.2f'):>7}")
     if args.figure:
         args.figure.parent.mkdir(parents=True, exist_ok=True)
         plot_examples(example_frames(args.dataset, by, args.margin), rows, args.figure)
