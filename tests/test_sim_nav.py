@@ -19,6 +19,15 @@ def build(**config):
     return scene, model, data
 
 
+def front_rgb(size: int, **config) -> np.ndarray:
+    """The front camera's first frame of a freshly reset scene."""
+    scene, model, data = build(**config)
+    scene.kinematics(model, data)
+    with FrameRenderer(model, size, size) as r:
+        r.update(data, "front")
+        return r.rgb()
+
+
 def drive(scene, model, data, command, seconds):
     scene.apply_command(model, data, np.asarray(command, float))
     for _ in range(round(seconds / model.opt.timestep)):
@@ -72,11 +81,7 @@ def test_floor_and_target_colour_keys():
 def test_plain_floor_has_no_checker_edges():
     edges = {}
     for floor in ("checker", "plain"):
-        scene, model, data = build(floor=floor)
-        scene.kinematics(model, data)
-        with FrameRenderer(model, 64, 64) as r:
-            r.update(data, "front")
-            rows = r.rgb()[40:].astype(float).mean(axis=2)     # the floor below the horizon
+        rows = front_rgb(64, floor=floor)[40:].astype(float).mean(axis=2)   # below the horizon
         edges[floor] = np.abs(np.diff(rows, axis=1)).mean()   # the light falls off smoothly
     assert edges["plain"] < 0.6 * edges["checker"], edges
 
@@ -246,11 +251,5 @@ def test_state_round_trip_renders_the_same_image_with_flicker_and_blur():
 
 
 def test_low_light_is_darker():
-    means = {}
-    for lighting in ("nominal", "low"):
-        scene, model, data = build(lighting=lighting)
-        scene.kinematics(model, data)
-        with FrameRenderer(model, 48, 48) as r:
-            r.update(data, "front")
-            means[lighting] = r.rgb().mean()
+    means = {lighting: front_rgb(48, lighting=lighting).mean() for lighting in ("nominal", "low")}
     assert means["low"] < 0.5 * means["nominal"]
