@@ -36,6 +36,15 @@ def test_a_repeated_choice_weights_it():
     assert 60 < blurred < 140                                   # ~1 in 4
 
 
+def test_list_valued_choices_are_drawn_whole():
+    """A colour is one choice, not three: the appearance keys of the floor/contrast study."""
+    shades = [[0.5, 0.06, 0.04], [0.9, 0.15, 0.1], [1.0, 0.45, 0.4]]
+    r = SceneRandomiser("nav", NAV_BASE, {"target_rgb": shades, "floor": ["checker", "plain"]})
+    draws = [r.draw(episode_seed(2, k)) for k in range(60)]
+    assert {tuple(d["target_rgb"]) for d in draws} == {tuple(c) for c in shades}
+    assert {d["floor"] for d in draws} == {"checker", "plain"}
+
+
 @pytest.mark.parametrize("spec, words", [
     ({"variant": ["indoor", "attic"]}, ["randomise.variant", "'attic'"]),
     ({"rgb_blur": [0, 99]}, ["randomise.rgb_blur", "99"]),
@@ -47,6 +56,8 @@ def test_a_repeated_choice_weights_it():
     ({"fovy": {"normal": [70, 5]}}, ["randomise.fovy", "uniform"]),
     ({"fovy": {"uniform": [60, 200]}}, ["randomise.fovy", "200"]),
     ({"timestep": [0.001, 0.002]}, ["randomise.timestep", "sim setting"]),
+    ({"floor": ["checker", "carpet"]}, ["randomise.floor", "'carpet'"]),
+    ({"target_rgb": [[0.9, 0.15, 0.1], [2.0, 0, 0]]}, ["randomise.target_rgb", "2.0"]),
 ])
 def test_a_bad_spec_names_the_key_and_the_value(spec, words):
     with pytest.raises(ValueError) as err:
