@@ -15,7 +15,8 @@ the camera hands the emulator): the mean inside the box (less a 1 px rim) agains
 of a 2 px band beyond each side edge, 1 px out, the larger of the two sides (a target
 crossing the image horizontally fires on its side edges). A pixel fires only when its
 level moves by the threshold (the episode's emulator pos_thres / neg_thres), so an edge
-of lower contrast makes no events however fast it moves.
+of lower contrast makes no events however fast it moves. (The emulator sees sharp luma;
+in motion-blurred episodes the recorded RGB frame is smeared and understates it.)
 
     python tools/event_share.py datasets/nav_rand [--json out.json] [--by variant,lighting]
                                 [--figure shares.png]
