@@ -102,13 +102,14 @@ def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, lis
             if not ok.any():
                 continue
             idx = np.flatnonzero(ok)
+            image = np.asarray(ep.truth["image"][:])
             total, share, area = frame_shares(np.asarray(ep.event_frame[:])[idx], bbox[idx],
-                                              np.asarray(ep.truth["image"][:])[idx], margin)
-            rgb, image = ep.rgb, np.asarray(ep.truth["image"][:])
+                                              image[idx], margin)
             emulator = (ep.attrs.get("emulator") or {}).get("resolved", {})
             thresholds = [float(emulator.get(k, "nan")) for k in ("pos_thres", "neg_thres")]
             g = groups[key]
-            g["contrast"] += [edge_contrast(np.asarray(rgb[k]), bbox[k], image[k]) for k in idx]
+            g["contrast"] += [edge_contrast(np.asarray(ep.rgb[k]), bbox[k], image[k])
+                              for k in idx]
             g["threshold"].append(min(thresholds))
             g["events"] += total.tolist()
             g["share"] += share.tolist()
