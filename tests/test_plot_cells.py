@@ -1,18 +1,10 @@
 """tools/plot_cells.py: one modality's rate per cell across evaluations, beside no action."""
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "plot_cells.py"
-
-
-def _load_tool():
-    spec = importlib.util.spec_from_file_location("plot_cells", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.tools_loader import tool_module
 
 
 def _results(path: Path, event_rates: dict, baseline: float | None) -> Path:
@@ -34,42 +26,42 @@ def _results(path: Path, event_rates: dict, baseline: float | None) -> Path:
 
 
 def test_cell_rates_pair_each_cell_with_its_no_action_mean(tmp_path):
-    tool = _load_tool()
-    path = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4],
-                                     ("fast", "outdoor"): [1.0]}, baseline=0.3)
-    cells = tool.cell_rates(tool.read_results(path), "event", "success")
-    assert list(cells) == ["fast/outdoor", "nominal/indoor"]
-    assert cells["nominal/indoor"] == {"episodes": [0.2, 0.4], "no_action": 0.3}
-    strict = tool.cell_rates(tool.read_results(path), "event", "strict_success")
-    assert strict["nominal/indoor"]["episodes"] == [0.1, 0.2]
+    with tool_module("plot_cells") as tool:
+        path = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4],
+                                         ("fast", "outdoor"): [1.0]}, baseline=0.3)
+        cells = tool.cell_rates(tool.read_results(path), "event", "success")
+        assert list(cells) == ["fast/outdoor", "nominal/indoor"]
+        assert cells["nominal/indoor"] == {"episodes": [0.2, 0.4], "no_action": 0.3}
+        strict = tool.cell_rates(tool.read_results(path), "event", "strict_success")
+        assert strict["nominal/indoor"]["episodes"] == [0.1, 0.2]
 
 
 def test_main_draws_and_writes_every_evaluation(tmp_path, capsys):
-    tool = _load_tool()
-    a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4]}, baseline=0.3)
-    b = _results(tmp_path / "b", {("nominal", "indoor"): [0.9, 0.7]}, baseline=None)
-    out, js = tmp_path / "cells.png", tmp_path / "cells.json"
-    assert tool.main([str(a), str(b), "--labels", "checker,plain", "--modality", "event",
-                      "--out", str(out), "--json", str(js)]) == 0
-    assert out.stat().st_size > 1000
-    cells = json.loads(js.read_text())["cells"]
-    assert cells["checker"]["nominal/indoor"] == {"mean": pytest.approx(0.3), "episodes": 2,
-                                                  "no_action": 0.3}
-    assert cells["plain"]["nominal/indoor"]["no_action"] is None
-    assert "80.0 % over   2 episodes (no action -)" in capsys.readouterr().out
+    with tool_module("plot_cells") as tool:
+        a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4]}, baseline=0.3)
+        b = _results(tmp_path / "b", {("nominal", "indoor"): [0.9, 0.7]}, baseline=None)
+        out, js = tmp_path / "cells.png", tmp_path / "cells.json"
+        assert tool.main([str(a), str(b), "--labels", "checker,plain", "--modality", "event",
+                          "--out", str(out), "--json", str(js)]) == 0
+        assert out.stat().st_size > 1000
+        cells = json.loads(js.read_text())["cells"]
+        assert cells["checker"]["nominal/indoor"] == {"mean": pytest.approx(0.3), "episodes": 2,
+                                                      "no_action": 0.3}
+        assert cells["plain"]["nominal/indoor"]["no_action"] is None
+        assert "80.0 % over   2 episodes (no action -)" in capsys.readouterr().out
 
 
 def test_main_names_what_is_wrong(tmp_path, capsys):
-    tool = _load_tool()
-    a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2]}, baseline=None)
-    with pytest.raises(SystemExit):
-        tool.main([str(a), "--labels", "x,y", "--modality", "event", "--out",
-                   str(tmp_path / "f.png")])
-    assert "--labels names 2 evaluations, 1 given" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        tool.main([str(a), "--modality", "rgb", "--out", str(tmp_path / "f.png")])
-    assert "no 'rgb' episodes" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        tool.main([str(tmp_path / "missing"), "--modality", "event", "--out",
-                   str(tmp_path / "f.png")])
-    assert "no such file" in capsys.readouterr().err
+    with tool_module("plot_cells") as tool:
+        a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2]}, baseline=None)
+        with pytest.raises(SystemExit):
+            tool.main([str(a), "--labels", "x,y", "--modality", "event", "--out",
+                       str(tmp_path / "f.png")])
+        assert "--labels names 2 evaluations, 1 given" in capsys.readouterr().err
+        with pytest.raises(SystemExit):
+            tool.main([str(a), "--modality", "rgb", "--out", str(tmp_path / "f.png")])
+        assert "no 'rgb' episodes" in capsys.readouterr().err
+        with pytest.raises(SystemExit):
+            tool.main([str(tmp_path / "missing"), "--modality", "event", "--out",
+                       str(tmp_path / "f.png")])
+        assert "no such file" in capsys.readouterr().err
