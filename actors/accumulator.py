@@ -69,4 +69,5 @@ class Accumulator(Actor):
                               "window_s": self.params.window_s})
 
     def stats(self) -> dict:
-        return {"frames": self.frames_out}
+        return {"frames": self.frames_out,
+                "recounts": self.acc.recounts if self.acc is not None else 0}

@@ -110,3 +110,66 @@ def test_accumulator_actor_rebuilds_only_when_the_geometry_changes():
     assert built[0] is built[1] is built[2] and built[3] is built[4] is not built[2]
     shapes = [a["frame"].shape for out, a, *_ in node.emitted if out == "frames"]
     assert shapes == [(2, 120, 160)] * 3 + [(2, 60, 80)] * 2
+
+
+def random_packets(rng, n, sensor=(16, 12), disorder=False):
+    """Packets of 5 ms with a few events each; with ``disorder`` some packets come late
+    or unsorted, and some events fall off the sensor or carry polarity 0."""
+    sw, sh = sensor
+    packets = []
+    for i in range(n):
+        k = int(rng.integers(0, 30))
+        ev = np.zeros(k, EVENT_DTYPE)
+        start = i * 5_000_000
+        if disorder and rng.random() < 0.05:
+            start -= int(rng.integers(1, 4)) * 5_000_000     # a late packet
+        ev["t"] = np.sort(rng.integers(start, start + 5_000_000, k))
+        if disorder and rng.random() < 0.05:
+            ev["t"] = rng.permutation(ev["t"])
+        ev["x"] = rng.integers(0, sw + (2 if disorder else 0), k)
+        ev["y"] = rng.integers(0, sh + (2 if disorder else 0), k)
+        ev["p"] = rng.choice([-1, 0, 1] if disorder else [-1, 1], k)
+        packets.append(ev)
+    return packets
+
+
+@pytest.mark.parametrize("disorder", [False, True])
+@pytest.mark.parametrize("seed", range(4))
+def test_running_counts_equal_a_recount_of_the_window(seed, disorder):
+    """The counts kept up to date packet by packet give the frame a recount of the window
+    gives, for windows that cut packets, frames past the newest event, clears, late and
+    unsorted packets, and events off the sensor."""
+    rng = np.random.default_rng(seed)
+    geometry = EventGeometry((16, 12), (32, 24))
+    running = EventAccumulator(geometry, "counts", window_s=0.0173, clip=3)
+    recount = EventAccumulator(geometry, "counts", window_s=0.0173, clip=3, incremental=False)
+    t_end, newest, compared, past_end = 0, None, 0, 0
+    for i, packet in enumerate(random_packets(rng, 200, disorder=disorder)):
+        for acc in (running, recount):
+            acc.add(packet.copy())
+        if packet.size:
+            newest = max(newest or 0, int(packet["t"].max()))
+        if rng.random() < 0.02:
+            running.clear(), recount.clear()
+            newest = None
+        if rng.random() < 0.3:
+            t_end = max(t_end, i * 5_000_000 + int(rng.integers(-6_000_000, 6_000_000)))
+            np.testing.assert_array_equal(running.frame(t_end), recount.frame(t_end))
+            compared += 1
+            past_end += newest is not None and newest > t_end
+    assert compared > 30
+    if disorder:        # both ways were taken
+        assert 0 < running.recounts < compared
+    else:               # in order, only a window ending before the newest event is recounted
+        assert running.recounts == past_end < compared
+
+
+def test_running_counts_forget_what_left_the_window():
+    geometry = EventGeometry((4, 4), (4, 4))
+    acc = EventAccumulator(geometry, "counts", window_s=0.01)
+    ev = np.zeros(2, EVENT_DTYPE)
+    ev["t"], ev["x"], ev["y"], ev["p"] = [1_000_000, 9_000_000], [1, 2], [0, 3], [1, -1]
+    acc.add(ev)
+    assert acc.frame(10_000_000).sum() == 2
+    assert acc.frame(15_000_000)[1, 3, 2] == 1 and acc.frame(15_000_000).sum() == 1
+    assert acc.frame(30_000_000).sum() == 0 and not acc._packets
