@@ -275,7 +275,7 @@ def plot_success(results: dict, path) -> None:
     labels = ["\n".join(str(k) for k in c if k is not None and not (nav and k == "single"))
               for c in conds]
     mods = _ordered({e["modality"] for e in eps})
-    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(conds), 3.6))
+    fig, ax = plt.subplots(figsize=(3.4 + 1.6 * len(conds), 3.6))
     width = 0.8 / max(1, len(mods))
     for j, mod in enumerate(mods):
         vals, errs = [], [[], []]
@@ -298,7 +298,8 @@ def plot_success(results: dict, path) -> None:
     ax.set_xticks(np.arange(len(conds)), labels)
     ax.set_ylim(0, 105)
     ax.set_ylabel("success rate (%)" if nav else "grasp success (%)")
-    ax.legend(fontsize=8, loc="lower left")
+    # outside the axes: inside, some cell's bars are always behind it
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.set_title(f"{results['task']}: success by condition and modality (95% Wilson)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
