@@ -67,6 +67,10 @@ class Expert(Actor):
         control_hz: Annotated[float, Range(ge=1e-3, le=100_000)] = 20.0
         # arm (sebvs.experts.arm.ArmExpertConfig)
         clearance: Annotated[float, Range(ge=0)] = 0.10   # m above the object's top face
+        lead_s: Annotated[float, Range(ge=0, le=10)] = 0.0
+                                       # s: aim where a moving cube will be this much later
+                                       # (the grasp comes one control period after the last
+                                       # tick); 0: where it is (sebvs.experts.arm.TargetLead)
         camera: str = ""               # wrist camera name ("" = the scene's first)
         threads: Annotated[int, Range(ge=1, le=256)] = 1
                                        # OpenCV threads: actors share the cores, and a second
@@ -91,6 +95,8 @@ class Expert(Actor):
             self.states: dict[int, dict] = {}
             self.arm = None                 # built from the sim's scene + config
             self.arm_key = None
+            from sebvs.experts.arm import TargetLead
+            self.lead = TargetLead(p.lead_s)
         self.log.info("expert: task %s, colour %s", p.task, p.color)
 
     def _detector(self):
@@ -150,6 +156,8 @@ class Expert(Actor):
             self.episode = ep
             if self.params.task == "nav":
                 self.nav.reset()
+            else:
+                self.lead.reset()
             dt = 1.0 / self.params.control_hz
         else:
             dt = t - self.last_t
@@ -220,6 +228,9 @@ class Expert(Actor):
             pose, det, mode = pregrasp_from_images(
                 pend.rgb, pend.depth, cam, self.detector,
                 ArmExpertConfig(clearance=self.params.clearance, **self.arm.scene_constants()))
+            if self.params.lead_s > 0:
+                self.lead.lead_s = self.params.lead_s
+                pose[:2] += self.lead.update(self.last_t, pose[:2] if mode == "grasp" else None)
             del self.pending[tick]
             await self._answer(pend.msg, "pose", pose, det, mode)
         # frames of ticks that can no longer complete (a lost state) must not pile up

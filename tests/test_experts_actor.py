@@ -188,3 +188,64 @@ def test_gains_change_while_running_and_bad_values_are_refused():
     assert ex.params.color == [0.9, 0.15, 0.1]
     with pytest.raises(ValueError, match="cannot change"):
         asyncio.run(ex.control("task", "arm"))
+
+
+def arm_expert_poses(lead_s: float, ticks: int = 8):
+    """The arm expert actor in process on the arm scene with one cube on a 25 cm/s belt:
+    (poses it answered, the target's true position at each tick)."""
+    from sebvs.sim.render import FrameRenderer    # sets MUJOCO_GL before mujoco loads
+    import mujoco
+    from sebvs.sim import make_scene
+    config = {"conveyor": "moving", "belt_speed": 0.25, "objects": 1,
+              "spawn_y": [-0.08, -0.06], "width": 160, "height": 160}
+    scene = make_scene("arm", **config)
+    model = scene.compile()
+    data = mujoco.MjData(model)
+    scene.reset(model, data, np.random.default_rng(0))
+    node = FakeNode()
+    ex = Expert("expert", Expert.Params(task="arm", hue_tol=360.0, lead_s=lead_s), seed=0,
+                clock="lockstep", consumed=frozenset({"action"}),
+                connected=frozenset({"rgb", "depth", "state"}), node=node)
+    asyncio.run(ex.setup())
+    truth = []
+    steps = round(0.1 / model.opt.timestep)
+    with FrameRenderer(model, 160, 160) as r:
+        for tick in range(ticks):
+            t = scene.truth(model, data)
+            truth.append(t["cubes"][t["target"]]["pos"][:2] if t["target"] >= 0 else None)
+            r.update(data, "wrist")
+            meta = {"episode": 0, "control": True, "t_ep": float(data.time)}
+            state_meta = {**meta, **({"scene": "arm", "config": config} if tick == 0 else {})}
+            for output, arrays, m in (("state", scene.state(data), state_meta),
+                                      ("rgb", {"rgb": r.rgb()}, meta),
+                                      ("depth", {"depth": r.depth()}, meta)):
+                asyncio.run(getattr(ex, f"on_{output}")(Message(
+                    topic="t", source="x", output=output, seq=tick, t_sim=float(data.time),
+                    tick=tick, stamps=[], meta=m, arrays=arrays)))
+            for _ in range(steps):
+                scene.scripted(model, data)
+                mujoco.mj_step(model, data)
+    poses = [(a["pose"], meta["mode"]) for out, a, meta, _ in node.emitted if out == "action"]
+    return poses, truth
+
+
+def test_arm_expert_with_a_lead_aims_where_the_cube_will_be_at_the_next_tick():
+    """On a 25 cm/s belt the cube moves 2.5 cm per 0.1 s control period: with lead_s = 0.1
+    the expert's pose at a tick is where the cube is at the next tick; without, where it
+    was."""
+    errors = {}
+    for lead_s in (0.0, 0.1):
+        poses, truth = arm_expert_poses(lead_s)
+        assert len(poses) == len(truth)
+        now, ahead = [], []
+        for k in range(2, len(poses) - 1):            # velocity known from the second tick
+            (pose, mode), here, there = poses[k], truth[k], truth[k + 1]
+            if mode != "grasp" or here is None or there is None:
+                continue
+            now.append(np.hypot(*(pose[:2] - np.asarray(here))))
+            ahead.append(np.hypot(*(pose[:2] - np.asarray(there))))
+        assert len(now) >= 3, poses
+        errors[lead_s] = (float(np.median(now)), float(np.median(ahead)))
+    still, led = errors[0.0], errors[0.1]
+    assert still[0] < 0.01 and still[1] > 0.02, errors    # on the cube now, 2.5 cm behind next
+    assert led[1] < 0.01 and led[0] > 0.02, errors        # 2.5 cm ahead now, on it next

@@ -85,3 +85,26 @@ def test_leftmost_of_several_cubes():
     pose, _, _ = pregrasp_from_images(rgb, depth, cam, ColorDetector(),
                                       ArmExpertConfig(leftmost="-world_y"))
     assert abs(pose[1] - 0.12) < 0.003
+
+
+def test_target_lead_aims_where_a_steadily_moving_target_will_be():
+    from sebvs.experts.arm import TargetLead
+    lead = TargetLead(lead_s=0.1)
+    assert np.allclose(lead.update(0.0, [0.5, 0.0]), 0.0)        # one sighting: no velocity
+    for k in range(1, 4):
+        off = lead.update(0.1 * k, [0.5, 0.025 * k])              # 25 cm/s along +y
+        assert np.allclose(off, [0.0, 0.025]), off
+    # another cube becomes the target 8 cm behind: a 0.8 m/s jump keeps the belt's velocity
+    assert np.allclose(lead.update(0.4, [0.5, 0.075 - 0.08]), [0.0, 0.025])
+    assert np.allclose(lead.update(0.5, [0.5, 0.075 - 0.08 + 0.025]), [0.0, 0.025])
+    # no target: no offset, and the next sighting is not paired with a stale position
+    assert np.allclose(lead.update(0.6, None), 0.0)
+    assert np.allclose(lead.update(0.7, [0.3, 0.3]), [0.0, 0.025])
+    lead.reset()
+    assert np.allclose(lead.update(0.8, [0.3, 0.4]), 0.0)
+    assert np.allclose(TargetLead(0.0).update(1.0, [1, 1]), 0.0)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="lead_s"):
+            TargetLead(bad)
+    with pytest.raises(ValueError, match="max_speed"):
+        TargetLead(0.1, max_speed=0.0)

@@ -166,6 +166,49 @@ def pregrasp_from_images(rgb: np.ndarray, depth: np.ndarray, cam: CameraPose,
     return pregrasp_pose(obj, cfg), obj.detection, "grasp"
 
 
+class TargetLead:
+    """Where a moving target will be ``lead_s`` from now, for a pose that is acted on later.
+
+    The arm's last command is grasped one control period after its image, when the belt
+    stops: a cube on a 25 cm/s belt has moved 2.5 cm by then. The velocity comes from the
+    target's positions at consecutive control ticks (a belt-tracking pick cell estimates
+    it the same way); a jump faster than ``max_speed`` is another object becoming the
+    target, or a misdetection, and keeps the previous velocity, as does a tick without a
+    target. Every cube rides the same belt, so the velocity carries over a change of
+    target. lead_s 0 leaves poses unchanged.
+    """
+
+    def __init__(self, lead_s: float = 0.0, max_speed: float = 0.5):
+        if not (math.isfinite(lead_s) and lead_s >= 0):
+            raise ValueError(f"lead_s must be a finite number >= 0, got {lead_s!r}")
+        if not (math.isfinite(max_speed) and max_speed > 0):
+            raise ValueError(f"max_speed must be a finite number > 0, got {max_speed!r}")
+        self.lead_s, self.max_speed = lead_s, max_speed
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode: nothing seen, no velocity."""
+        self.velocity = np.zeros(2)
+        self._last: tuple[float, np.ndarray] | None = None
+
+    def update(self, t: float, xy) -> np.ndarray:
+        """The target's world (x, y) in m at time t s, or None when there is none; returns
+        the (x, y) offset to add to its pose."""
+        if xy is None:
+            self._last = None
+            return np.zeros(2)
+        xy = np.asarray(xy, np.float64)[:2]
+        if self._last is not None:
+            t0, xy0 = self._last
+            dt = t - t0
+            if dt > 0:
+                v = (xy - xy0) / dt
+                if float(np.hypot(*v)) <= self.max_speed:
+                    self.velocity = v
+        self._last = (t, xy)
+        return self.velocity * self.lead_s
+
+
 class ArmCameraModel:
     """The wrist camera's pose from the sim's state, with the expert's own copy of the arm
     model (compiled from the sim's scene + config, like the camera actor's)."""
