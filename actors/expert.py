@@ -92,7 +92,7 @@ class Expert(Actor):
             if missing:
                 raise ValueError(f"expert: task arm needs inputs {sorted(missing)} wired")
             self.pending: dict[int, _Pending] = {}
-            self.states: dict[int, dict] = {}
+            self.states: dict[int, tuple] = {}   # tick -> (ArmCameraModel, state)
             self.arm = None                 # built from the sim's scene + config
             self.arm_key = None
             from sebvs.experts.arm import TargetLead
@@ -212,7 +212,9 @@ class Expert(Actor):
             self.arm_key = (meta["scene"], meta["config"])
         if not meta.get("control"):
             return
-        self.states[msg.tick] = {k: np.array(a) for k, a in msg.arrays.items()}
+        # with the model of its own episode: the next episode's first state (another
+        # scene, maybe another number of cubes) can come before this tick's images
+        self.states[msg.tick] = (self.arm, {k: np.array(a) for k, a in msg.arrays.items()})
         await self._arm_ready()
 
     async def _arm_ready(self) -> None:
@@ -221,13 +223,14 @@ class Expert(Actor):
         for tick in sorted(self.pending):
             pend = self.pending[tick]
             if pend.rgb is None or pend.depth is None or tick not in self.states or \
-                    self.arm is None:
+                    self.states[tick][0] is None:
                 continue
             self._new_tick(pend.msg)
-            cam = self.arm.camera_pose(self.states.pop(tick))
+            arm, state = self.states.pop(tick)
+            cam = arm.camera_pose(state)
             pose, det, mode = pregrasp_from_images(
                 pend.rgb, pend.depth, cam, self.detector,
-                ArmExpertConfig(clearance=self.params.clearance, **self.arm.scene_constants()))
+                ArmExpertConfig(clearance=self.params.clearance, **arm.scene_constants()))
             if self.params.lead_s > 0:
                 self.lead.lead_s = self.params.lead_s
                 pose[:2] += self.lead.update(self.last_t, pose[:2] if mode == "grasp" else None)

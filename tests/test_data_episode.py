@@ -1,6 +1,7 @@
 """Episode files and the dataset index: round trip, atomic index, resumed numbering."""
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,3 +201,35 @@ def test_rows_go_to_their_episode_whatever_the_marker_order(tmp_path):
     row(4, 2)
     assert rec.close() == [] and rec.discarded == 1        # in progress at shutdown
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_an_episode_taken_away_at_its_rename_is_still_indexed_and_the_next_row_kept(
+        tmp_path, monkeypatch):
+    """A fan-out driver adopts a worker's episode file the moment it has its final name
+    (sebvs/data/record.py): the worker's entry is made before the rename, so the file
+    leaving at once neither raises nor costs the next episode its first row."""
+    import hashlib
+    import sebvs.data.episode as episode_module
+    driver = tmp_path / "driver"
+    driver.mkdir()
+    real_replace = os.replace
+
+    def replace_then_adopt(src, dst):
+        real_replace(src, dst)
+        if str(dst).endswith(".h5"):
+            real_replace(dst, driver / Path(dst).name)
+    monkeypatch.setattr(episode_module.os, "replace", replace_then_adopt)
+    rec = EpisodeRecorder(tmp_path / "stage", "nav")
+    row = lambda t, k: rec.row(t, rgb=np.full((4, 4, 3), t, np.uint8), t_sim=t / 10,
+                               action=[t, 0], episode=k)
+    rec.start({"episode": 0, "seed": 5, "scene": "s", "config": {}}, 0)
+    row(0, 0)
+    row(1, 0)
+    rec.end("time_limit", 2)                       # its last row (tick 2) never comes
+    rec.start({"episode": 1, "seed": 6, "scene": "s", "config": {}}, 3)
+    done = row(3, 1)                               # finishes episode 0 on the way
+    assert [e["file"] for e in done] == ["episode_0000.h5"]
+    moved = driver / "episode_0000.h5"
+    assert done[0]["frames"] == 2 and \
+        done[0]["sha256"] == hashlib.sha256(moved.read_bytes()).hexdigest()
+    assert rec.end("time_limit", 3)[0]["frames"] == 1       # episode 1 kept its first row

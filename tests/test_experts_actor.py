@@ -249,3 +249,41 @@ def test_arm_expert_with_a_lead_aims_where_the_cube_will_be_at_the_next_tick():
     still, led = errors[0.0], errors[0.1]
     assert still[0] < 0.01 and still[1] > 0.02, errors    # on the cube now, 2.5 cm behind next
     assert led[1] < 0.01 and led[0] > 0.02, errors        # 2.5 cm ahead now, on it next
+
+
+def test_arm_expert_answers_an_episode_s_last_tick_after_the_next_episode_began():
+    """The next episode's first state (another scene: three cubes, not one) can reach the
+    expert before the images of this episode's last tick: that tick is answered with the
+    model of its own episode, not refused for a state of the wrong size."""
+    from sebvs.sim.render import FrameRenderer    # sets MUJOCO_GL before mujoco loads
+    import mujoco
+    from sebvs.sim import make_scene
+    node = FakeNode()
+    ex = Expert("expert", Expert.Params(task="arm", hue_tol=360.0), seed=0,
+                clock="lockstep", consumed=frozenset({"action"}),
+                connected=frozenset({"rgb", "depth", "state"}), node=node)
+    asyncio.run(ex.setup())
+    frames = []
+    for episode, objects in enumerate((1, 3)):
+        config = {"objects": objects, "spawn_y": [-0.05, 0.25], "width": 160, "height": 160}
+        scene = make_scene("arm", **config)
+        model = scene.compile()
+        data = mujoco.MjData(model)
+        scene.reset(model, data, np.random.default_rng(episode))
+        with FrameRenderer(model, 160, 160) as r:
+            r.update(data, "wrist")
+            frames.append((episode, config, scene.state(data), r.rgb(), r.depth()))
+
+    def message(tick, output, arrays, meta):
+        return Message(topic="t", source="x", output=output, seq=tick, t_sim=tick * 0.1,
+                       tick=tick, stamps=[], meta=meta, arrays=arrays)
+    for tick, (episode, config, state, _, _) in enumerate(frames):      # both states first
+        meta = {"episode": episode, "control": True, "t_ep": 0.0, "scene": "arm",
+                "config": config}
+        asyncio.run(ex.on_state(message(tick, "state", state, meta)))
+    for tick, (episode, _, _, rgb, depth) in enumerate(frames):
+        meta = {"episode": episode, "control": True, "t_ep": 0.0}
+        asyncio.run(ex.on_rgb(message(tick, "rgb", {"rgb": rgb}, meta)))
+        asyncio.run(ex.on_depth(message(tick, "depth", {"depth": depth}, meta)))
+    acts = [(tick, meta["mode"]) for out, _, meta, tick in node.emitted if out == "action"]
+    assert acts == [(0, "grasp"), (1, "grasp")]

@@ -94,3 +94,17 @@ def test_rendered_nav_frames_match_the_projected_truth():
     # measured: centroid mean 0.5 px, p90 0.85 px; bbox edges mean 0.4, p90 0.5 px
     assert cerr.mean() < 1.0 and np.percentile(cerr, 90) < 1.5, (cerr.mean(), np.percentile(cerr, 90))
     assert berr.mean() < 1.0 and np.percentile(berr, 90) < 1.0
+
+
+def test_a_single_pixel_of_the_colour_is_masked_not_an_error():
+    """One pixel passing the hue test makes a 1 x 1 chroma box, which cv2.compare took for
+    a scalar and refused: the arm expert's handler then failed and the lockstep sim waited
+    its 10 s action timeout."""
+    img = np.full((40, 40, 3), 120, np.uint8)
+    img[7, 9] = (230, 40, 25)
+    det = ColorDetector(rgb=NAV_TARGET_RGB, min_area=1)
+    mask = det.mask(img)
+    assert mask[7, 9] == 255 and mask.sum() == 255
+    assert [d.bbox for d in det.detect_all(img)] == [(9, 7, 1, 1)]
+    img[7, 9] = (40, 40, 40)                         # grey: fails hue and chroma alike
+    assert det.mask(img).sum() == 0

@@ -236,6 +236,12 @@ class EpisodeWriter:
     # --- ending -------------------------------------------------------------------------
     def finish(self, reason: str = "") -> Path:
         """Write the columns, trim, flush, fsync, close, rename to the final name; returns it."""
+        self.close(reason)
+        return self.publish()
+
+    def close(self, reason: str = "") -> Path:
+        """Write the columns, trim, flush, fsync and close the file under its partial name
+        (complete, not yet published); returns that path."""
         self._write_columns()
         for ds in self._big.values():
             ds.resize(self.frames, axis=0)
@@ -249,6 +255,10 @@ class EpisodeWriter:
             os.fsync(fd)
         finally:
             os.close(fd)
+        return self.partial
+
+    def publish(self) -> Path:
+        """Rename the closed file to its final name (the moment readers may take it)."""
         os.replace(self.partial, self.path)
         _fsync_dir(self.path.parent)
         return self.path

@@ -44,13 +44,14 @@ def write_json_atomic(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
-def make_entry(path: str | Path, reason: str | None = None) -> dict:
-    """An index entry for a finished episode file (reads its attributes, hashes it)."""
+def make_entry(path: str | Path, reason: str | None = None, name: str | None = None) -> dict:
+    """An index entry for a finished episode file (reads its attributes, hashes it);
+    ``name``: the file's name in the index, when the entry is made before its rename."""
     from .episode import open_episode
     path = Path(path)
     with open_episode(path) as ep:
         attrs, frames = ep.attrs, len(ep)
-    return {"file": path.name, "frames": frames, "seed": attrs.get("seed"),
+    return {"file": name or path.name, "frames": frames, "seed": attrs.get("seed"),
             "conditions": attrs.get("conditions", {}), "sha256": file_sha256(path),
             "bytes": path.stat().st_size,
             "reason": attrs.get("end_reason", "") if reason is None else reason}

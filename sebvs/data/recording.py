@@ -227,8 +227,10 @@ class EpisodeRecorder:
             self._discard(ep, "no rows", removed=True)
             return None
         frames, sim_s = ep.writer.frames, ep.writer.sim_seconds
-        path = ep.writer.finish(ep.reason)
-        entry = make_entry(path, ep.reason)
+        # the entry (hash, attributes) before the rename: a fan-out driver adopts the file
+        # the moment it has its final name (sebvs/data/record.py), and it is gone from here
+        entry = make_entry(ep.writer.close(ep.reason), ep.reason, name=ep.writer.path.name)
+        path = ep.writer.publish()
         self.index.add(entry)            # last: only a complete, renamed file is indexed
         self.finished.append(entry)
         self.frames += frames

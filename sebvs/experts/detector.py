@@ -112,8 +112,9 @@ class ColorDetector:
             roi = rgb[y:y + h, x:x + w]
             r, g, b = cv2.split(roi)
             chroma = cv2.subtract(cv2.max(cv2.max(r, g), b), cv2.min(cv2.min(r, g), b))
-            ok = cv2.compare(chroma, self.c_min, cv2.CMP_GE)
-            m[y:y + h, x:x + w] &= ok
+            # numpy, not cv2.compare: OpenCV reads a 1 x 1 array as a scalar and refuses
+            # "scalar op scalar", which a single pixel passing the hue test gives
+            m[y:y + h, x:x + w] &= np.where(chroma >= self.c_min, 255, 0).astype(np.uint8)
         if self.open_px > 1:
             k = np.ones((self.open_px, self.open_px), np.uint8)
             m = cv2.morphologyEx(m, cv2.MORPH_OPEN, k)
