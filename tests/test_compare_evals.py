@@ -67,3 +67,17 @@ def test_command_line_reads_directories_and_names_bad_files(tool, tmp_path, caps
     assert "bad.json: not a readable results.json" in capsys.readouterr().err
     assert tool.main([str(a), str(tmp_path / "none")]) == 2
     assert "none: no such file" in capsys.readouterr().err
+
+
+def test_arm_evaluations_pair_grasp_success_over_graspable_episodes(tool):
+    """An arm episode where the task says HOME has no grasp (grasp_success None): it is
+    left out of the pairs, not counted as a failure."""
+    def arm(successes):
+        return {"task": "arm", "seed": 100014, "episodes": [
+            {"modality": "rgb+event", "condition": "fast", "scenario": "single", "seed": i,
+             "metrics": {"grasp_success": g}} for i, g in enumerate(successes)]}
+    out = tool.compare(arm([True, True, None, False]), arm([False, True, None, False]))
+    r = out["rgb+event"]["fast/single"]["grasp_success"]
+    assert (r["a"], r["b"], r["n"]) == (pytest.approx(2 / 3), pytest.approx(1 / 3), 3)
+    assert (r["wins"], r["losses"], r["ties"]) == (1, 0, 2)
+    assert "### rgb+event: grasp success, lead - shipped" in tool.markdown(out, ("lead", "shipped"))

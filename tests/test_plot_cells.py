@@ -65,3 +65,33 @@ def test_main_names_what_is_wrong(tmp_path, capsys):
             tool.main([str(tmp_path / "missing"), "--modality", "event", "--out",
                        str(tmp_path / "f.png")])
         assert "no such file" in capsys.readouterr().err
+
+
+def test_arm_grasp_success_skips_home_episodes_and_takes_a_modality_per_evaluation(
+        tmp_path, capsys):
+    with tool_module("plot_cells") as tool:
+        def arm(name, modality, grasps):
+            eps = [{"modality": modality, "condition": "fast", "scenario": "single",
+                    "seed": i, "metrics": {"grasp_success": g}} for i, g in enumerate(grasps)]
+            eps += [{"modality": "no_action", "condition": "fast", "scenario": "single",
+                     "seed": i, "metrics": {"grasp_success": None if g is None else False}}
+                    for i, g in enumerate(grasps)]
+            path = tmp_path / name
+            path.mkdir()
+            (path / "results.json").write_text(json.dumps({"task": "arm", "seed": 3,
+                                                           "episodes": eps}))
+            return path
+        a = arm("a", "rgb+event", [True, None, True, False])
+        b = arm("b", "expert", [True, None, True, True])
+        js = tmp_path / "cells.json"
+        assert tool.main([str(a), str(b), "--modality", "rgb+event,expert", "--out",
+                          str(tmp_path / "f.png"), "--json", str(js)]) == 0
+        got = json.loads(js.read_text())
+        assert got["metric"] == "grasp_success"
+        assert got["cells"]["a"]["fast/single"] == {"mean": pytest.approx(2 / 3),
+                                                    "episodes": 3, "no_action": 0.0}
+        assert got["cells"]["b"]["fast/single"]["mean"] == 1.0
+        with pytest.raises(SystemExit):
+            tool.main([str(a), str(b), "--modality", "rgb,event,expert", "--out",
+                       str(tmp_path / "g.png")])
+        assert "--modality names 3 modalities for 2 evaluations" in capsys.readouterr().err

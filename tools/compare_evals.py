@@ -12,6 +12,8 @@ both hold (or those of --modalities) and each metric, one markdown table, a row 
 condition and scenario: A's mean, B's mean, A - B in points with its bootstrap 95 %
 interval, A's wins / losses / ties over the pairs and the exact sign test's two-sided p
 (sebvs/metrics.py paired_comparison). A cell either run lacks is left out and named.
+Metrics: nav the paper rate, the strict rate and episode success; arm grasp success, over
+the episodes where a cube was graspable (the scene decides which, so both sides agree).
 """
 from __future__ import annotations
 
@@ -43,6 +45,10 @@ def read_results(path: Path) -> dict:
     return results
 
 
+# the arm's grasp_success is None where the task says HOME: those episodes have no grasp
+TASK_METRICS = {"nav": METRICS, "arm": (("grasp_success", "grasp success"),)}
+
+
 def _by_key(results: dict, modality: str) -> dict:
     return {(e["condition"], e["scenario"], e["seed"]): e
             for e in results["episodes"] if e["modality"] == modality}
@@ -62,7 +68,8 @@ def compare(a: dict, b: dict, modalities: list[str] | None = None) -> dict:
     if missing:
         raise ValueError(f"modality {missing[0]!r} is not in both evaluations (both hold: "
                          f"{', '.join(both) or 'none'})")
-    out: dict = {"unpaired": []}
+    metrics = TASK_METRICS.get(a.get("task"), METRICS)
+    out: dict = {"unpaired": [], "metrics": [list(m) for m in metrics]}
     for m in chosen:
         mine, theirs = _by_key(a, m), _by_key(b, m)
         cells = sorted({k[:2] for k in mine} | {k[:2] for k in theirs})
@@ -72,12 +79,17 @@ def compare(a: dict, b: dict, modalities: list[str] | None = None) -> dict:
             if not pairs:
                 out["unpaired"].append(f"{m} {cond}/{scen}")
                 continue
-            table[f"{cond}/{scen}"] = {
-                metric: {"a": statistics.fmean(mine[k]["metrics"][metric] for k in pairs),
-                         "b": statistics.fmean(theirs[k]["metrics"][metric] for k in pairs),
-                         **paired_comparison([mine[k]["metrics"][metric] for k in pairs],
-                                             [theirs[k]["metrics"][metric] for k in pairs])}
-                for metric, _ in METRICS}
+            row = {}
+            for metric, _ in metrics:
+                both = [k for k in pairs if mine[k]["metrics"].get(metric) is not None
+                        and theirs[k]["metrics"].get(metric) is not None]
+                if not both:
+                    continue
+                xa = [float(mine[k]["metrics"][metric]) for k in both]
+                xb = [float(theirs[k]["metrics"][metric]) for k in both]
+                row[metric] = {"a": statistics.fmean(xa), "b": statistics.fmean(xb),
+                               **paired_comparison(xa, xb)}
+            table[f"{cond}/{scen}"] = row
         out[m] = table
     return out
 
@@ -86,13 +98,15 @@ def markdown(comparison: dict, names: tuple[str, str]) -> str:
     a, b = names
     lines = []
     for m, table in comparison.items():
-        if m == "unpaired" or not table:
+        if m in ("unpaired", "metrics") or not table:
             continue
-        for metric, label in METRICS:
+        for metric, label in comparison.get("metrics", METRICS):
             lines += [f"### {m}: {label}, {a} - {b}", "",
                       f"| cell | {a} | {b} | {a} - {b} (points) | 95 % interval | "
                       f"wins / losses / ties | p (sign) |", "|---|---|---|---|---|---|---|"]
             for cell, row in table.items():
+                if metric not in row:
+                    continue
                 r = row[metric]
                 lines.append(f"| {cell} | {100 * r['a']:.1f} | {100 * r['b']:.1f} | "
                              f"{100 * r['mean_diff']:+.1f} | [{100 * r['ci95'][0]:+.1f}, "

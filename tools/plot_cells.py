@@ -5,8 +5,10 @@
         --labels "checker floor,plain floor" --modality event --out cells.png [--json cells.json]
 
 Each input is an `sebvs eval --out` directory (or its results.json) that played the
-modality. For every (condition, scenario) cell it holds, a bar shows the modality's mean
-rate over the cell's episodes (--metric: the paper rate by default), a dot each episode,
+modality (--modality: one for all, or one per evaluation, comma-separated). For every
+(condition, scenario) cell it holds, a bar shows the modality's mean rate over the cell's
+episodes (--metric: nav the paper rate by default; arm grasp success, over the episodes
+where a cube was graspable), a dot each episode,
 and a black tick what the evaluation's no-action row scores on the same seeds (when it
 has one): the rate the metric gives for free. Printed (and written with --json): per
 evaluation and cell, the mean, the episode count and the no-action mean.
@@ -23,8 +25,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.eval.run import BASELINE  # noqa: E402
-from tools.compare_evals import read_results  # noqa: E402
-from tools.studyio import METRICS  # noqa: E402
+from tools.compare_evals import TASK_METRICS, read_results  # noqa: E402
+
+METRIC_LABELS = {m: label for metrics in TASK_METRICS.values() for m, label in metrics}
 
 
 def cell_rates(results: dict, modality: str, metric: str) -> dict[str, dict]:
@@ -33,19 +36,21 @@ def cell_rates(results: dict, modality: str, metric: str) -> dict[str, dict]:
     cells: dict[str, dict] = {}
     for ep in results["episodes"]:
         key = f"{ep['condition']}/{ep['scenario']}"
-        if ep["modality"] == modality:
+        value = ep["metrics"].get(metric)
+        if ep["modality"] == modality and value is not None:    # None: no grasp to make
             cells.setdefault(key, {"episodes": [], "baseline": []})["episodes"].append(
-                ep["metrics"][metric])
+                float(value))
     for ep in results["episodes"]:
         key = f"{ep['condition']}/{ep['scenario']}"
-        if ep["modality"] == BASELINE and key in cells:
-            cells[key]["baseline"].append(ep["metrics"][metric])
+        value = ep["metrics"].get(metric)
+        if ep["modality"] == BASELINE and key in cells and value is not None:
+            cells[key]["baseline"].append(float(value))
     return {k: {"episodes": v["episodes"],
                 "no_action": statistics.fmean(v["baseline"]) if v["baseline"] else None}
             for k, v in sorted(cells.items())}
 
 
-def plot(rows: list[tuple[str, dict]], modality: str, metric_label: str, path: Path) -> None:
+def plot(rows: list[tuple[str, dict]], title: str, metric_label: str, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -73,7 +78,7 @@ def plot(rows: list[tuple[str, dict]], modality: str, metric_label: str, path: P
     ax.set_xticks(range(len(cells)), cells, fontsize=8)
     ax.set_ylim(0, 102)
     ax.set_ylabel(f"{metric_label} (%)")
-    ax.set_title(f"{modality}: bars the mean, dots the episodes, black ticks no action",
+    ax.set_title(f"{title}: bars the mean, dots the episodes, black ticks no action",
                  fontsize=9)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
@@ -87,24 +92,35 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("evals", nargs="+", type=Path, help="`sebvs eval --out` directories")
     ap.add_argument("--labels", help="comma-separated, one per evaluation (default: the "
                                      "directory names)")
-    ap.add_argument("--modality", required=True, help="the row to compare, e.g. event")
-    metrics = dict(METRICS)
-    ap.add_argument("--metric", default="success", choices=sorted(metrics),
-                    help="success: the paper rate (default); strict_success; episode_success")
+    ap.add_argument("--modality", required=True,
+                    help="the row to compare, e.g. event; or one per evaluation, "
+                         "comma-separated (rgb+event,expert)")
+    ap.add_argument("--metric", choices=sorted(METRIC_LABELS),
+                    help="nav: success (the paper rate, default), strict_success, "
+                         "episode_success; arm: grasp_success (default)")
     ap.add_argument("--out", type=Path, required=True, help="the figure (PNG)")
     ap.add_argument("--json", type=Path, help="also write the numbers here")
     args = ap.parse_args(argv)
     labels = args.labels.split(",") if args.labels else [p.name for p in args.evals]
     if len(labels) != len(args.evals):
         ap.error(f"--labels names {len(labels)} evaluations, {len(args.evals)} given")
-    rows = []
-    for label, path in zip(labels, args.evals):
+    modalities = args.modality.split(",")
+    if len(modalities) == 1:
+        modalities *= len(args.evals)
+    if len(modalities) != len(args.evals):
+        ap.error(f"--modality names {len(modalities)} modalities for {len(args.evals)} "
+                 f"evaluations (give one, or one per evaluation)")
+    rows, metric = [], args.metric
+    for label, path, modality in zip(labels, args.evals, modalities):
         try:
-            table = cell_rates(read_results(path), args.modality, args.metric)
+            results = read_results(path)
         except ValueError as exc:
             ap.error(str(exc))
+        task_metrics = TASK_METRICS.get(results.get("task"), TASK_METRICS["nav"])
+        metric = metric or task_metrics[0][0]
+        table = cell_rates(results, modality, metric)
         if not table:
-            ap.error(f"{path}: no {args.modality!r} episodes")
+            ap.error(f"{path}: no {modality!r} episodes with {metric}")
         rows.append((label, table))
     summary = {label: {cell: {"mean": statistics.fmean(v["episodes"]),
                               "episodes": len(v["episodes"]), "no_action": v["no_action"]}
@@ -115,11 +131,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{label:<28} {cell:<24} {100 * v['mean']:6.1f} % over {v['episodes']:3d} "
                   f"episodes (no action {base})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    plot(rows, args.modality, metrics[args.metric], args.out)
+    title = modalities[0] if len(set(modalities)) == 1 else "per evaluation"
+    plot(rows, title, METRIC_LABELS[metric], args.out)
     print(f"figure: {args.out}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"modality": args.modality, "metric": args.metric,
+        args.json.write_text(json.dumps({"modality": args.modality, "metric": metric,
                                          "evaluations": dict(zip(labels, map(str, args.evals))),
                                          "cells": summary}, indent=2))
     return 0
