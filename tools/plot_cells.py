@@ -58,7 +58,7 @@ def plot(rows: list[tuple[str, dict]], title: str, metric_label: str, path: Path
 
     cells = sorted({c for _, table in rows for c in table})
     width = 0.8 / len(rows)
-    fig, ax = plt.subplots(figsize=(3.0 + max(2.5, 0.6 * len(cells) * len(rows)), 3.6))
+    fig, ax = plt.subplots(figsize=(3.0 + max(2.5, 0.32 * len(cells) * len(rows)), 3.6))
     rng = np.random.default_rng(0)      # dot jitter only
     for i, (label, table) in enumerate(rows):
         xs, means = [], []
