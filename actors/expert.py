@@ -136,6 +136,8 @@ class Expert(Actor):
                 cfg = self._nav_config()
                 self.nav.cfg = cfg
                 self.nav.yaw_pid.g, self.nav.speed_pid.g = cfg.yaw, cfg.speed
+            else:
+                self.lead.lead_s = self.params.lead_s     # the velocity estimate is kept
         except ValueError:
             setattr(self.params, key, old)      # refused: the running settings stay
             raise
@@ -231,8 +233,7 @@ class Expert(Actor):
             pose, det, mode = pregrasp_from_images(
                 pend.rgb, pend.depth, cam, self.detector,
                 ArmExpertConfig(clearance=self.params.clearance, **arm.scene_constants()))
-            if self.params.lead_s > 0:
-                self.lead.lead_s = self.params.lead_s
+            if self.lead.lead_s > 0:
                 pose[:2] += self.lead.update(self.last_t, pose[:2] if mode == "grasp" else None)
             del self.pending[tick]
             await self._answer(pend.msg, "pose", pose, det, mode)

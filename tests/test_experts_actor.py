@@ -191,8 +191,9 @@ def test_gains_change_while_running_and_bad_values_are_refused():
 
 
 def arm_expert_poses(lead_s: float, ticks: int = 8):
-    """The arm expert actor in process on the arm scene with one cube on a 25 cm/s belt:
-    (poses it answered, the target's true position at each tick)."""
+    """The arm expert actor in process on the arm scene with one cube on a 25 cm/s belt,
+    its lead set through `sebvs ctl ... set lead_s=` after setup: (poses it answered, the
+    target's true position at each tick)."""
     from sebvs.sim.render import FrameRenderer    # sets MUJOCO_GL before mujoco loads
     import mujoco
     from sebvs.sim import make_scene
@@ -203,10 +204,11 @@ def arm_expert_poses(lead_s: float, ticks: int = 8):
     data = mujoco.MjData(model)
     scene.reset(model, data, np.random.default_rng(0))
     node = FakeNode()
-    ex = Expert("expert", Expert.Params(task="arm", hue_tol=360.0, lead_s=lead_s), seed=0,
+    ex = Expert("expert", Expert.Params(task="arm", hue_tol=360.0), seed=0,
                 clock="lockstep", consumed=frozenset({"action"}),
                 connected=frozenset({"rgb", "depth", "state"}), node=node)
     asyncio.run(ex.setup())
+    assert asyncio.run(ex.control("lead_s", lead_s)) == {"lead_s": lead_s}
     truth = []
     steps = round(0.1 / model.opt.timestep)
     with FrameRenderer(model, 160, 160) as r:
