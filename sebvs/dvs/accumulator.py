@@ -195,9 +195,10 @@ class _RunningCounts:
 
     def add(self, events: np.ndarray) -> None:
         x, y, p, t = events["x"], events["y"], events["p"], events["t"]
-        index = y.astype(np.int64) * self.width + x
+        row = y.astype(np.int64) * self.width
+        index = row + x
         index[p < 0] += self.plane
-        spare = (x >= self.width) | (y.astype(np.int64) * self.width >= self.plane) | (p == 0)
+        spare = (x >= self.width) | (row >= self.plane) | (p == 0)
         index[spare] = 2 * self.plane
         np.add.at(self.counts, index, 1)     # (int64: numpy 2 has its fast path for it)
         ordered = bool((self.newest_t is None or t[0] >= self.newest_t)
