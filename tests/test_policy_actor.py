@@ -173,3 +173,33 @@ def test_swap_order_in_process(ckpts):
                      {"from": "event", "to": "rgb+event", "effective_tick": 3}]
     assert sum(k == "inference" for k, _ in node.events) == 4
     assert actor.stats()["skipped_ticks"] == 0
+
+
+def test_frozen_graph_acts_like_eager_and_stays_for_the_run(ckpts):
+    """policy.graph="frozen" (sebvs/policy/graph.py) gives the eager actions to float32
+    rounding, says so in stats, and cannot be switched while running."""
+    rng = np.random.default_rng(5)
+    frames = [(rng.integers(0, 256, (32, 32, 3), dtype=np.uint8),
+               rng.integers(0, 6, (2, 32, 32), dtype=np.uint8)) for _ in range(3)]
+    actions, actors = {}, {}
+    for graph in ("eager", "frozen"):
+        node = _Node()
+        actor = Policy("policy", Policy.Params(directory=str(ckpts), graph=graph),
+                       connected=frozenset({"rgb", "events"}), node=node)
+
+        async def scenario():
+            await actor.setup()
+            for tick, (rgb, ev) in enumerate(frames):
+                await actor.on_rgb(_msg("rgb", tick, rgb))
+                await actor.on_events(_msg("events", tick, ev))
+            with pytest.raises(ValueError, match="'graph' cannot change while running"):
+                await actor.control("graph", "eager")
+
+        asyncio.run(scenario())
+        actions[graph] = np.stack([a["action"] for _, _, a in node.sent])
+        actors[graph] = actor
+    assert actions["frozen"].shape == (3, 2)
+    np.testing.assert_allclose(actions["frozen"], actions["eager"], atol=1e-5)
+    assert actors["frozen"].stats()["graphs"] == \
+        {"rgb": "frozen", "event": "frozen", "rgb+event": "frozen"}
+    assert set(actors["eager"].stats()["graphs"].values()) == {"eager"}

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .checkpoint import checkpoint_paths, load_checkpoint
+from .graph import check_graph, inference_graph
 from .inputs import MODALITIES, MODALITY_INPUTS, Normalisation, check_modality, model_input
 
 
@@ -23,6 +24,8 @@ class LoadedPolicy:
     config: dict
     norm: Normalisation
     path: str
+    run: object              # what act() calls: the model, or its frozen graph (graph.py)
+    graph: str               # which of the two it is
 
 
 def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
@@ -45,16 +48,27 @@ def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
 
 
 class PolicySet:
-    """The loaded variants of one task. ``act`` -> (action float32 [2] or [6], ms)."""
+    """The loaded variants of one task. ``act`` -> (action float32 [2] or [6], ms).
 
-    def __init__(self, table: dict[str, Path], task: str | None = None):
+    ``graph`` says how each model runs (sebvs/policy/graph.py): "eager" as trained, or
+    "frozen". A model that cannot be frozen runs eager; ``fallbacks`` says why.
+    """
+
+    def __init__(self, table: dict[str, Path], task: str | None = None,
+                 graph: str = "eager"):
         import torch
         self._torch = torch
+        check_graph(graph)
         self.policies: dict[str, LoadedPolicy] = {}
+        self.fallbacks: dict[str, str] = {}
         for m, path in table.items():
             expect = {"modality": m, **({"task": task} if task else {})}
             model, cfg, norm = load_checkpoint(path, expect=expect)
-            self.policies[m] = LoadedPolicy(model, cfg, norm, str(path))
+            example = torch.zeros(1, model.in_channels, model.size, model.size)
+            run, used, why = inference_graph(model, example, graph)
+            if why:
+                self.fallbacks[m] = why
+            self.policies[m] = LoadedPolicy(model, cfg, norm, str(path), run, used)
         tasks = {p.config["task"] for p in self.policies.values()}
         if len(tasks) != 1:
             raise ValueError(f"checkpoints mix tasks {sorted(tasks)}: one policy, one task")
@@ -80,7 +94,7 @@ class PolicySet:
         x = model_input(modality, p.norm, rgb=rgb, events=events)
         t1 = time.perf_counter()
         with self._torch.inference_mode():
-            y = p.model(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
+            y = p.run(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
         t2 = time.perf_counter()
         return y, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 
