@@ -1,8 +1,9 @@
 """Benchmark the ERP on this CPU: batch-1 inference latency and training throughput.
 
-    python tools/bench_policy.py [--quick] [--json FILE]
+    python tools/bench_policy.py [--quick] [--json FILE] [--shipped-only]
 
 JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
+       "shipped":   [{"checkpoint", "graph", "warm_p50_ms", "cold_p50_ms", ...}],
        "training":  [{"size", "samples_per_s", "batch", "threads", ...}], "env": {...}}
 
 Inference is what the policy actor does per tick: model.eval(), torch.inference_mode(),
@@ -11,6 +12,11 @@ batch 1, the nav head (the arm head adds two small linear layers). Input prepara
 The token embeddings named by --stems are timed: the paper's patch projection, ConvStem,
 GatedFusionStem and DualStem (the last two rgb+event only: they have no other modality).
 Training is one Adam step (forward, MSE, backward, update) on random batches.
+
+`shipped` times every checkpoint in --checkpoints (default checkpoints/) as the policy
+actor runs it, one thread, through each inference graph (sebvs/policy/graph.py: eager,
+frozen): `warm` back to back, `cold` after --idle-s of sleep, as a policy in a loop runs
+once per control tick. Graphs alternate call by call, so a slow phase hits both.
 """
 from __future__ import annotations
 
@@ -80,6 +86,43 @@ def bench_inference(modality: str, size: int, threads: int, budget_s: float,
             "prep_ms_from_640": round(float(np.median(prep)), 4)}
 
 
+def bench_shipped(path: Path, graphs: list[str], calls: int, idle_s: float) -> list[dict]:
+    """One checkpoint through each graph: model time only, warm and after ``idle_s`` idle."""
+    from sebvs.policy.checkpoint import load_checkpoint
+    from sebvs.policy.graph import inference_graph
+    torch.set_num_threads(1)
+    model, cfg, _ = load_checkpoint(path)
+    x = torch.rand(1, model.in_channels, model.size, model.size)
+    runs = {g: inference_graph(model, x, g) for g in graphs}
+    times = {g: {"warm": [], "cold": []} for g in graphs}
+    with torch.inference_mode():
+        for g in graphs:
+            for _ in range(3):      # first calls allocate
+                runs[g][0](x)
+        for _ in range(calls):
+            for g in graphs:
+                run = runs[g][0]
+                time.sleep(idle_s)
+                t0 = time.perf_counter()
+                run(x)
+                t1 = time.perf_counter()
+                run(x)
+                t2 = time.perf_counter()
+                times[g]["cold"].append((t1 - t0) * 1e3)
+                times[g]["warm"].append((t2 - t1) * 1e3)
+    out = []
+    for g in graphs:
+        warm, cold = np.asarray(times[g]["warm"]), np.asarray(times[g]["cold"])
+        out.append({"checkpoint": path.name, "stem": cfg.get("stem", "patch"),
+                    "size": model.size, "threads": 1, "graph": runs[g][1],
+                    "fallback": runs[g][2], "calls": calls, "idle_s": idle_s,
+                    "warm_p50_ms": round(float(np.median(warm)), 4),
+                    "warm_p99_ms": round(float(np.percentile(warm, 99)), 4),
+                    "cold_p50_ms": round(float(np.median(cold)), 4),
+                    "cold_p99_ms": round(float(np.percentile(cold, 99)), 4)})
+    return out
+
+
 def bench_training(size: int, batch: int, threads: int, steps: int) -> dict:
     torch.set_num_threads(threads)
     torch.manual_seed(0)
@@ -110,12 +153,31 @@ def main(argv=None) -> int:
                     help="token embeddings to time: patch (the paper's), conv (ConvStem), "
                          "gated (GatedFusionStem), dual (DualStem); the last two rgb+event "
                          "only")
+    ap.add_argument("--checkpoints", default=str(Path(__file__).resolve().parents[1] /
+                                                  "checkpoints"),
+                    help="directory of shipped .pt checkpoints to time (default checkpoints/)")
+    ap.add_argument("--graphs", default="eager,frozen",
+                    help="inference graphs for the shipped checkpoints (sebvs/policy/graph.py)")
+    ap.add_argument("--idle-s", type=float, default=0.1,
+                    help="idle time before a cold call: one control period at 10 Hz")
+    ap.add_argument("--shipped-only", action="store_true",
+                    help="only the shipped checkpoints, no synthetic models or training")
     args = ap.parse_args(argv)
     stems = args.stems.split(",")
     sizes = [int(s) for s in args.sizes.split(",")]
     threads = [int(t) for t in args.threads.split(",")]
     budget = 0.35 if args.quick else 2.0
     t_start = time.monotonic()
+
+    shipped = []
+    for pt in sorted(Path(args.checkpoints).glob("*.pt")):
+        rows = bench_shipped(pt, args.graphs.split(","), 15 if args.quick else 60, args.idle_s)
+        shipped += rows
+        print(f"shipped {pt.name:>20}: " + "  ".join(
+            f"{r['graph']} warm {r['warm_p50_ms']:.3f} cold {r['cold_p50_ms']:.3f} ms"
+            for r in rows), flush=True)
+    if args.shipped_only:
+        sizes = []
 
     inference = []
     for size in sizes:
@@ -140,7 +202,7 @@ def main(argv=None) -> int:
         print(f"training {size:>4}px batch {batch}: {r['ms_per_batch']:.1f} ms/batch, "
               f"{r['samples_per_s']:.1f} samples/s", flush=True)
 
-    result = {"inference": inference, "training": training,
+    result = {"inference": inference, "shipped": shipped, "training": training,
               "env": {"torch": torch.__version__, "python": platform.python_version(),
                       "machine": platform.machine(), "processor": platform.processor(),
                       "quick": args.quick, "seconds": round(time.monotonic() - t_start, 1)}}
