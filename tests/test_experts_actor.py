@@ -247,10 +247,11 @@ def test_arm_expert_with_a_lead_aims_where_the_cube_will_be_at_the_next_tick():
             now.append(np.hypot(*(pose[:2] - np.asarray(here))))
             ahead.append(np.hypot(*(pose[:2] - np.asarray(there))))
         assert len(now) >= 3, poses
-        errors[lead_s] = (float(np.median(now)), float(np.median(ahead)))
+        errors[lead_s] = (np.round(now, 4), np.round(ahead, 4))
+    # at every tick, not most: a lead on every other tick once passed a median
     still, led = errors[0.0], errors[0.1]
-    assert still[0] < 0.01 and still[1] > 0.02, errors    # on the cube now, 2.5 cm behind next
-    assert led[1] < 0.01 and led[0] > 0.02, errors        # 2.5 cm ahead now, on it next
+    assert max(still[0]) < 0.01 and min(still[1]) > 0.02, errors   # on it now, behind next
+    assert max(led[1]) < 0.01 and min(led[0]) > 0.02, errors       # ahead now, on it next
 
 
 def test_arm_expert_answers_an_episode_s_last_tick_after_the_next_episode_began():

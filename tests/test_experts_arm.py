@@ -108,3 +108,56 @@ def test_target_lead_aims_where_a_steadily_moving_target_will_be():
             TargetLead(bad)
     with pytest.raises(ValueError, match="max_speed"):
         TargetLead(0.1, max_speed=0.0)
+
+
+def test_target_lead_is_not_moved_by_the_pose_it_shifts():
+    """The expert passes a view of its pose and then shifts that pose by the lead
+    (actors/expert.py): the sighting kept for the next velocity must be the unshifted one.
+    Keeping the view made the velocity alternate between the belt's and zero, so the
+    lead reached every other tick only."""
+    from sebvs.experts.arm import TargetLead
+    lead = TargetLead(lead_s=0.1)
+    for k in range(6):
+        pose = np.array([0.5, -0.1 + 0.025 * k, 0.1, np.pi, 0.0, 0.0])
+        pose[:2] += lead.update(0.1 * k, pose[:2])
+        assert np.allclose(pose[:2], [0.5, -0.1 + 0.025 * k + (0.025 if k else 0.0)]), k
+
+
+def test_leading_poses_score_against_the_next_ticks_cube():
+    """The arm tracker's reference (sebvs.experts.arm.leading_poses): on a belt at 15 cm/s
+    with a 0.1 s lead at 10 Hz, each grasp pose after the first lands where the cube is at
+    the next tick; home ticks keep their pose and restart the velocity estimate."""
+    from sebvs.experts.arm import leading_poses
+    from sebvs.sim.arm import HOME_POSE
+    times = 0.1 * np.arange(6)
+    cube_y = -0.1 + 0.15 * times
+    poses = [[0.5, y, 0.1, np.pi, 0.0, 0.2] for y in cube_y]
+    modes = ["grasp"] * 6
+    poses[3], modes[3] = list(HOME_POSE), "home_none"       # the cube lost for one tick
+    led = leading_poses(poses, modes, times, 0.1)
+    assert led.shape == (6, 6)
+    assert np.allclose(led[0], poses[0])                     # one sighting: no velocity yet
+    for k in (1, 2, 5):
+        assert np.allclose(led[k, :2], [0.5, cube_y[k] + 0.015]), k
+        assert np.allclose(led[k, 2:], poses[k][2:])
+    assert np.allclose(led[3], HOME_POSE)
+    # after the gap the belt's velocity is kept (as the expert keeps it)
+    assert np.allclose(led[4, :2], [0.5, cube_y[4] + 0.015])
+    assert np.array_equal(leading_poses(poses, modes, times, 0.0), np.array(poses))
+    with pytest.raises(ValueError, match="6 poses, 5 modes, 6 times"):
+        leading_poses(poses, modes[:5], times, 0.1)
+
+
+def test_the_arm_tracker_leads_as_the_expert_that_made_the_labels():
+    """The lead the arm recording's expert aims with is the one the evaluation scores with."""
+    import tomllib
+    from pathlib import Path
+    top = Path(__file__).resolve().parents[1] / "topologies"
+
+    def actor(name, key):
+        return tomllib.loads((top / name).read_text())["actors"][key]
+    recorded = actor("arm_record.toml", "expert")["lead_s"]
+    assert recorded > 0
+    assert actor("arm_policy.toml", "tracker")["lead_s"] == recorded
+    assert actor("arm_expert.toml", "tracker")["lead_s"] == recorded
+    assert actor("arm_expert.toml", "expert")["lead_s"] == recorded

@@ -197,7 +197,8 @@ class TargetLead:
         if xy is None:
             self._last = None
             return np.zeros(2)
-        xy = np.asarray(xy, np.float64)[:2]
+        # a copy: callers shift the pose this may be a view of by the returned offset
+        xy = np.array(xy, np.float64)[:2]
         if self._last is not None:
             t0, xy0 = self._last
             dt = t - t0
@@ -207,6 +208,27 @@ class TargetLead:
                     self.velocity = v
         self._last = (t, xy)
         return self.velocity * self.lead_s
+
+
+def leading_poses(poses, modes, times, lead_s: float) -> np.ndarray:
+    """One episode's poses [T, 6], each grasp pose led as the expert leads its own
+    (TargetLead over the ticks in order; actors/expert.py): [T, 6] float64.
+
+    ``modes`` [T] says which ticks aim at a target ("grasp"); the others keep their pose
+    and break the velocity estimate as a tick without a target does. ``times`` [T] s.
+    lead_s 0 returns the poses unchanged. The arm tracker scores poses against this with
+    the lead the labels were made with, not against where the cube is at the tick.
+    """
+    out = np.array(poses, np.float64).reshape(-1, 6)
+    if len(modes) != len(out) or len(times) != len(out):
+        raise ValueError(f"{len(out)} poses, {len(modes)} modes, {len(times)} times: "
+                         f"one of each per tick")
+    lead = TargetLead(lead_s)
+    if lead_s == 0:
+        return out
+    for k, (mode, t) in enumerate(zip(modes, times)):
+        out[k, :2] += lead.update(float(t), out[k, :2] if mode == "grasp" else None)
+    return out
 
 
 class ArmCameraModel:
