@@ -12,7 +12,8 @@ keeps what it finished).
 NavTracker   metrics over the whole episode and per modality segment (a live modality
              swap splits an episode), the centroid-error trace.
 ArmTracker   every tick's predicted pose against the task's pose from truth (the expert's
-             rule on the true cube poses), the decision at the end and the grasp outcome.
+             rule on the true cube poses, led by `lead_s`), the decision at the end and
+             the grasp outcome.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from sebvs.metrics import (arm_metrics, centre_error_px, end_decision_correct,
                                 grasp_success, nav_episode_metrics)
+from sebvs.experts.arm import leading_poses
 from sebvs.runtime import Actor, Message, Range
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
@@ -156,15 +158,27 @@ class NavTracker(EpisodeTracker):
 
 class ArmTracker(EpisodeTracker):
     """Table 5: each tick's predicted pose against the pose the task asks for (truth's
-    expert_pose: the expert's rule on the true cube poses), plus the end decision and the
-    grasp of the last pose that the sim's finish() ran."""
+    expert_pose: the expert's rule on the true cube poses, led by ``lead_s`` as the
+    expert that made the labels leads a moving cube), plus the end decision and the grasp
+    of the last pose that the sim's finish() ran."""
+
+    @dataclass
+    class Params(EpisodeTracker.Params):
+        # the expert's lead_s when the policy's labels were recorded (topologies/
+        # arm_record.toml): a policy that learned to aim 0.1 s ahead of a moving cube is
+        # scored against that aim, not against where the cube is at the tick
+        lead_s: Annotated[float, Range(ge=0, le=10)] = 0.0
 
     def keep_action(self, msg: Message) -> np.ndarray | None:
         pose = msg.arrays.get("pose")
         return None if pose is None else np.asarray(pose, np.float64).reshape(6)
 
     def summarise(self, rows: list, segments: dict, info: dict) -> dict:
-        pairs = [(self.actions[k], t["expert_pose"]) for k, t, _ in rows if k in self.actions]
+        reference = leading_poses([t["expert_pose"] for _, t, _ in rows],
+                                  [t["mode"] for _, t, _ in rows],
+                                  [t_ep for _, _, t_ep in rows], self.params.lead_s)
+        pairs = [(self.actions[k], ref) for (k, _, _), ref in zip(rows, reference)
+                 if k in self.actions]
         pred = np.array([p for p, _ in pairs]).reshape(-1, 6)
         expert = np.array([e for _, e in pairs], dtype=np.float64).reshape(-1, 6)
         outcome = (info.get("outcome") or {}).get("outcome")
@@ -173,6 +187,7 @@ class ArmTracker(EpisodeTracker):
                    **arm_metrics(pred, expert),
                    "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
                    "modes": [t["mode"] for k, t, _ in rows if k in self.actions],
+                   "reference_lead_s": self.params.lead_s,
                    "outcome": outcome, "grasp_success": grasp_success(outcome),
                    "end_decision_correct": end_decision_correct(outcome),
                    "duration_s": self._duration(rows)}

@@ -96,6 +96,8 @@ def test_short_arm_evaluation_grasps_and_reports(tmp_path):
     expert = eps["expert"]["metrics"]
     assert len(expert["pred"]) == 6 and expert["scenario"] == "multi"    # ticks 0..5
     assert expert["position_error_mm"] < 10 and expert["accuracy"] == 1.0
+    # scored against the task's pose led as the recording's expert leads (arm_policy.toml)
+    assert expert["reference_lead_s"] == eps["rgb"]["metrics"]["reference_lead_s"] == 0.1
     assert expert["outcome"] == "lifted_and_held" and expert["grasp_success"] is True
     policy = eps["rgb"]["metrics"]
     assert policy["outcome"] and policy["grasp_success"] in (True, False)
