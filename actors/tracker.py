@@ -54,6 +54,7 @@ class EpisodeTracker(Actor):
         self.episodes: dict[int, dict] = {}                # episode -> start/end meta
         self.finished: list[dict] = []
         self._timers: dict[int, asyncio.TimerHandle] = {}
+        self.last_action_tick: int | None = None
 
     def keep_action(self, msg: Message) -> np.ndarray | None:
         """The command array to keep per tick (None: only modality and latency)."""
@@ -69,16 +70,39 @@ class EpisodeTracker(Actor):
             return
         ep = m.get("episode")
         self.frames[ep].append((msg.tick, m["truth"], float(m.get("t_ep", 0.0))))
-        for done in [e for e in self.episodes if e < ep and self.episodes[e].get("ended")]:
-            self._finalize(done)
+        self._finalize_complete()
+
+    def _finalize_complete(self) -> None:
+        """Write every ended episode that a later one's frames follow and whose last tick's
+        action is in. The action of an episode's last tick comes through the policy, so
+        it can arrive after the camera's first frame of the next episode; ticks count up
+        over the run and one source's actions arrive in order, so an action of a later
+        tick means this episode's are all here. Without an action input only the frames
+        count. An action that never comes (a skipped tick) waits for the timer."""
+        latest = max((e for e, rows in self.frames.items() if isinstance(e, int) and rows),
+                     default=None)
+        for ep, info in list(self.episodes.items()):
+            if not isinstance(ep, int) or not info.get("ended") or info.get("written") or \
+                    latest is None or ep >= latest:
+                continue
+            rows = self.frames.get(ep)
+            last_tick = max(r[0] for r in rows) if rows else None
+            if "action" in self.connected and last_tick is not None and (
+                    self.last_action_tick is None or self.last_action_tick < last_tick):
+                continue
+            self._finalize(ep)
 
     async def on_action(self, msg: Message) -> None:
+        if msg.tick is not None and (self.last_action_tick is None or
+                                     msg.tick > self.last_action_tick):
+            self.last_action_tick = msg.tick
         self.modality_at[msg.tick] = msg.meta.get("modality", "expert")
         if "inference_ms" in msg.meta:
             self.inference_ms[msg.tick] = float(msg.meta["inference_ms"])
         kept = self.keep_action(msg)
         if kept is not None:
             self.actions[msg.tick] = kept
+        self._finalize_complete()
 
     async def on_episode(self, msg: Message) -> None:
         m = msg.meta
