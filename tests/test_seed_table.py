@@ -1,0 +1,74 @@
+"""tools/seed_table.py: training seeds of two modalities on the same episodes, per cell."""
+import json
+
+import pytest
+
+from tests.tools_loader import tool_module
+
+
+def results(a_wins: dict[str, list], b_wins: dict[str, list], seed: int = 7) -> dict:
+    """An arm evaluation: per cell, rgb+event's and rgb's grasp outcome per episode (None:
+    nothing graspable)."""
+    eps = []
+    for modality, cells in (("rgb+event", a_wins), ("rgb", b_wins)):
+        for cell, outcomes in cells.items():
+            cond, scen = cell.split("/")
+            eps += [{"modality": modality, "condition": cond, "scenario": scen, "seed": 100 + k,
+                     "metrics": {"grasp_success": o}} for k, o in enumerate(outcomes)]
+    return {"task": "arm", "seed": seed, "episodes": eps}
+
+
+def test_a_reading_needs_the_mean_and_every_run(tmp_path):
+    one = [True] * 10
+    runs = {
+        # fast: A ahead by 30 and 20; nominal: +40 in one run, -10 in the other
+        "s0": results({"fast/multi": one, "nominal/multi": one},
+                      {"fast/multi": [True] * 7 + [False] * 3,
+                       "nominal/multi": [True] * 6 + [False] * 4}),
+        "s1": results({"fast/multi": one, "nominal/multi": [True] * 8 + [False] * 2},
+                      {"fast/multi": [True] * 8 + [False] * 2,
+                       "nominal/multi": [True] * 9 + [False]}),
+    }
+    with tool_module("seed_table") as tool:
+        table = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10)
+        md = tool.markdown(table)
+    fast, nominal = table["cells"]["fast/multi"], table["cells"]["nominal/multi"]
+    assert table["metric"] == "grasp_success"
+    assert fast["per_run"]["s0"]["diff"] == pytest.approx(0.3)
+    assert fast["mean_diff"] == pytest.approx(0.25) and fast["ahead"] == 2
+    assert fast["reading"] == "rgb+event helps"
+    # the episodes averaged over the runs: B missed episodes 7 (once), 8 and 9 (twice)
+    assert (fast["episodes"]["wins"], fast["episodes"]["losses"]) == (3, 0)
+    assert nominal["mean_diff"] == pytest.approx(0.15) and nominal["behind"] == 1
+    assert nominal["reading"] == "no clear difference"     # the mean alone is not enough
+    assert "| fast/multi | +30.0 | +20.0 | 100.0 | 75.0 | +25.0 | 2 / 0 |" in md
+    with tool_module("seed_table") as tool:
+        loose = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10, min_ahead=1)
+    assert loose["cells"]["nominal/multi"]["reading"] == "rgb+event helps"
+
+
+def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
+    runs = {"s0": results({"moving/single": [True, None, True]},
+                          {"moving/single": [False, None, True]}),
+            "s1": results({"moving/single": [True, None, False]},
+                          {"moving/single": [True, None, False]})}
+    with tool_module("seed_table") as tool:
+        cell = tool.seed_table(runs, "rgb+event", "rgb")["cells"]["moving/single"]
+        assert cell["per_run"]["s0"]["n"] == 2 and cell["episodes"]["n"] == 2
+        assert cell["mean_diff"] == pytest.approx(0.25)
+        with pytest.raises(ValueError, match="run 's1' differs in seed"):
+            tool.seed_table({"s0": runs["s0"], "s1": {**runs["s1"], "seed": 8}}, "rgb+event", "rgb")
+        with pytest.raises(ValueError, match="run 's0' holds no 'event' episodes"):
+            tool.seed_table(runs, "event", "rgb")
+        with pytest.raises(ValueError, match="at least two runs"):
+            tool.seed_table({"s0": runs["s0"]}, "rgb+event", "rgb")
+        # the command line: NAME=DIR pairs, a clear refusal of a directory without results
+        for name, res in runs.items():
+            (tmp_path / name).mkdir()
+            (tmp_path / name / "results.json").write_text(json.dumps(res))
+        out = tmp_path / "t.json"
+        assert tool.main([f"s0={tmp_path / 's0'}", f"s1={tmp_path / 's1'}", "--a", "rgb+event",
+                          "--b", "rgb", "--json", str(out)]) == 0
+        assert json.loads(out.read_text())["runs"] == ["s0", "s1"]
+        assert tool.main([f"s0={tmp_path / 's0'}", f"s1={tmp_path / 'nope'}", "--a", "rgb+event",
+                          "--b", "rgb"]) == 2
