@@ -68,7 +68,9 @@ def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
             (tmp_path / name / "results.json").write_text(json.dumps(res))
         out = tmp_path / "t.json"
         assert tool.main([f"s0={tmp_path / 's0'}", f"s1={tmp_path / 's1'}", "--a", "rgb+event",
-                          "--b", "rgb", "--json", str(out)]) == 0
+                          "--b", "rgb", "--json", str(out), "--plot",
+                          str(tmp_path / "seeds.png")]) == 0
         assert json.loads(out.read_text())["runs"] == ["s0", "s1"]
+        assert (tmp_path / "seeds.png").stat().st_size > 5000
         assert tool.main([f"s0={tmp_path / 's0'}", f"s1={tmp_path / 'nope'}", "--a", "rgb+event",
                           "--b", "rgb"]) == 2

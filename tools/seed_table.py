@@ -3,7 +3,8 @@
 of the modality, or because of one training run?
 
     tools/seed_table.py seed0=out/arm_lead/eval_lead seed1=out/arm_lead/eval_seed1 \\
-        seed2=out/arm_lead/eval_seed2 --a rgb+event --b rgb --min-diff 10 --json out/seeds.json
+        seed2=out/arm_lead/eval_seed2 --a rgb+event --b rgb --min-diff 10 --json out/seeds.json \\
+        --plot docs/figures/seeds.png
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
 one seed; all must have played the same task and topology seed (the same episodes). Per
@@ -119,6 +120,35 @@ def markdown(table: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plot(table: dict, path: Path) -> None:
+    """Per cell, A - B in points: a bar for the mean over runs, a dot per run, the
+    episodes' 95 % interval as a line; cells coloured by their reading."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(table["cells"])
+    colour = {f"{table['a']} helps": "tab:green", f"{table['a']} hurts": "tab:red"}
+    fig, ax = plt.subplots(figsize=(3.0 + 0.55 * len(cells), 3.6))
+    for j, cell in enumerate(cells):
+        r = table["cells"][cell]
+        ax.bar(j, 100 * r["mean_diff"], 0.6, color=colour.get(r["reading"], "0.7"),
+               alpha=0.8)
+        runs = [100 * v["diff"] for v in r["per_run"].values()]
+        ax.scatter([j] * len(runs), runs, s=12, color="black", zorder=3)
+        lo, hi = (100 * v for v in r["episodes"]["ci95"])
+        ax.vlines(j + 0.22, lo, hi, color="0.3", lw=1.2)
+    ax.axhline(0, color="black", lw=0.8)
+    ax.set_xticks(range(len(cells)), cells, fontsize=8, rotation=30, ha="right")
+    ax.set_ylabel(f"{table['a']} - {table['b']} (points)")
+    ax.set_title(f"{table['metric']}: bars the mean over {len(table['runs'])} training runs, "
+                 f"dots each run, lines the episodes' 95 % interval; green / red: the rule "
+                 f"says helps / hurts", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -132,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-ahead", type=int,
                     help="runs that must agree for a reading (default: all)")
     ap.add_argument("--json", type=Path, help="also write the table here")
+    ap.add_argument("--plot", type=Path, help="also draw the differences here (PNG)")
     args = ap.parse_args(argv)
     runs = {}
     for spec in args.runs:
@@ -154,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(table, indent=1) + "\n")
+    if args.plot:
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        plot(table, args.plot)
     return 0
 
 
