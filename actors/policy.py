@@ -62,9 +62,10 @@ class Policy(Actor):
         self.event_frame_mismatch: dict[str, int] = {}
         self.swaps: list[dict] = []
         self.inference_ms: list[float] = []
+        graphs = sorted({lp.graph for lp in self.policies.policies.values()})
         self.log.info("loaded %s (%s, %s graph); active %s; inputs wired: %s",
-                      ", ".join(self.policies.modalities), self.policies.task, p.graph,
-                      p.modality,
+                      ", ".join(self.policies.modalities), self.policies.task,
+                      " and ".join(graphs), p.modality,
                       ", ".join(sorted(self.connected)) or "none")
 
     def _check_usable(self, modality: str) -> None:
