@@ -56,6 +56,15 @@ def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
         cell = tool.seed_table(runs, "rgb+event", "rgb")["cells"]["moving/single"]
         assert cell["per_run"]["s0"]["n"] == 2 and cell["episodes"]["n"] == 2
         assert cell["mean_diff"] == pytest.approx(0.25)
+        # a cell one run has no graspable episode in is named, not dropped unseen
+        gap = {"s0": runs["s0"], "s1": results({"moving/single": [True, None, False],
+                                               "fast/multi": [None]},
+                                              {"moving/single": [True, None, False],
+                                               "fast/multi": [None]})}
+        table = tool.seed_table(gap, "rgb+event", "rgb")
+        assert list(table["cells"]) == ["moving/single"]
+        assert table["left_out"] == ["fast/multi"]
+        assert "Not scored by every run: fast/multi" in tool.markdown(table)
         with pytest.raises(ValueError, match="run 's1' differs in seed"):
             tool.seed_table({"s0": runs["s0"], "s1": {**runs["s1"], "seed": 8}}, "rgb+event", "rgb")
         with pytest.raises(ValueError, match="run 's0' holds no 'event' episodes"):

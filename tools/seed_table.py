@@ -65,7 +65,8 @@ def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
     by_run = {n: (_by_key(r, a), _by_key(r, b)) for n, r in runs.items()}
     cells = sorted({k[:2] for ea, _ in by_run.values() for k in ea})
     out: dict = {"metric": metric, "a": a, "b": b, "runs": list(runs),
-                 "rule": {"min_diff_points": min_diff, "min_ahead": need}, "cells": {}}
+                 "rule": {"min_diff_points": min_diff, "min_ahead": need}, "cells": {},
+                 "left_out": []}
     for cond, scen in cells:
         keys = sorted({k for ea, eb in by_run.values() for k in ea if k[:2] == (cond, scen)})
         per_run, avg_a, avg_b = {}, [], []
@@ -82,7 +83,8 @@ def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
                 avg_a.append(statistics.fmean(x for x, _ in xs))
                 avg_b.append(statistics.fmean(y for _, y in xs))
         if len(per_run) < len(runs) or not avg_a:
-            continue        # a cell some run lacks is not compared
+            out["left_out"].append(f"{cond}/{scen}")   # some run scored none of it
+            continue
         diffs = [r["diff"] for r in per_run.values()]
         mean_diff = statistics.fmean(diffs)
         ahead = sum(d > 0 for d in diffs)
@@ -117,6 +119,8 @@ def markdown(table: dict) -> str:
                      f"{100 * r['mean_diff']:+.1f} | {r['ahead']} / {r['behind']} | "
                      f"[{100 * e['ci95'][0]:+.1f}, {100 * e['ci95'][1]:+.1f}], "
                      f"{e['p_sign']:.3g} | {r['reading']} |")
+    if table["left_out"]:
+        lines += ["", "Not scored by every run: " + ", ".join(table["left_out"])]
     return "\n".join(lines) + "\n"
 
 
