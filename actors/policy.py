@@ -6,6 +6,8 @@ Inputs  rgb     from the camera:       arrays["rgb"]   uint8 [H, W, 3], tick
                 the active checkpoint was trained on (its "event_frames"): a difference is
                 counted (stats "event_frame_mismatch") and logged, the frame still used
         (samples with meta control=False, taken between control ticks, are ignored)
+        The control modality rgb+diff reads rgb and the RGB frame of the previous control
+        tick of the same episode (meta episode), which the actor keeps
 Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 [6]} (arm),
         tick = the input tick, meta {"modality", "input_ticks", "inference_ms", ...}
 
@@ -45,7 +47,7 @@ class Policy(Actor):
         graph: Literal["eager", "frozen"] = "eager"
 
     async def setup(self) -> None:
-        from sebvs.policy.infer import PolicySet, TickSync, resolve_checkpoints
+        from sebvs.policy.infer import PolicySet, PreviousFrame, TickSync, resolve_checkpoints
         from sebvs.policy.inputs import MODALITY_INPUTS
         self._inputs_of = MODALITY_INPUTS
         p = self.params
@@ -54,8 +56,11 @@ class Policy(Actor):
         self.policies = PolicySet(table, task=p.task if p.directory else None, graph=p.graph)
         for m, why in self.policies.fallbacks.items():
             self.log.warning("%s runs eager, not %s: %s", m, p.graph, why)
+        # the previous tick's RGB frame is kept only where a loaded checkpoint reads it
+        self.previous = PreviousFrame() if "rgb" in self.connected and any(
+            "rgb_prev" in MODALITY_INPUTS[m] for m in self.policies.modalities) else None
         self._check_usable(p.modality)
-        self.sync = TickSync(tuple(s for s in ("rgb", "events") if s in self.connected))
+        self.sync = TickSync(tuple(self._wired()))
         self.policies.warm_up()
         self.emitted = 0
         self.skipped_ticks = 0
@@ -76,14 +81,24 @@ class Policy(Actor):
         if modality not in self.policies.policies:
             raise ValueError(f"modality {modality!r} has no checkpoint loaded "
                              f"(loaded: {', '.join(self.policies.modalities)})")
-        missing = [s for s in self._inputs_of[modality] if s not in self.connected]
+        missing = [s for s in self._inputs_of[modality] if s not in self._wired()]
         if missing:
             raise ValueError(f"modality {modality!r} needs input(s) {', '.join(missing)}, "
                              f"which this topology does not wire to {self.name!r}")
 
+    def _wired(self) -> list[str]:
+        """The streams this actor can fill: its wired inputs, and rgb_prev (made from rgb)."""
+        streams = [s for s in ("rgb", "events") if s in self.connected]
+        return streams + (["rgb_prev"] if self.previous is not None else [])
+
     # ------------------------------------------------------------------ inputs
     async def on_rgb(self, msg: Message) -> None:
-        await self._receive("rgb", msg, msg.arrays["rgb"])
+        rgb = msg.arrays["rgb"]
+        if self.previous is not None and msg.tick is not None \
+                and msg.meta.get("control") is not False:
+            self.sync.put("rgb_prev", msg.tick,
+                          self.previous.swap(msg.meta.get("episode"), msg.tick, rgb), msg.t_sim)
+        await self._receive("rgb", msg, rgb)
 
     async def on_events(self, msg: Message) -> None:
         self._check_event_frame(msg.meta)

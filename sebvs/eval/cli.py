@@ -64,7 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "(docs/scale.md).")
     e.add_argument("--task", choices=["nav", "arm"], default="nav")
     e.add_argument("--modalities", default="rgb,event,rgb+event",
-                   help="comma-separated: rgb, event, rgb+event")
+                   help="comma-separated: rgb, event, rgb+event; or rgb+diff, the control "
+                        "that gives the RGB policy the change since the previous frame "
+                        "(needs <task>-rgb+diff.pt)")
     e.add_argument("--episodes", type=int, default=10,
                    help="episodes per modality, condition and scenario")
     e.add_argument("--conditions", default="nominal",

@@ -27,9 +27,10 @@ import numpy as np
 from ..data.splits import SPLITS, split_of
 from ..metrics import arm_metrics, paired_comparison, wilson_interval
 
-MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event")
+MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event", "rgb+diff")
 NAME = {"expert": "Expert (reference)", "no_action": "No action (baseline)",
-        "rgb": "RGB-only", "event": "Event-only", "rgb+event": "RGB+Event"}
+        "rgb": "RGB-only", "event": "Event-only", "rgb+event": "RGB+Event",
+        "rgb+diff": "RGB+Diff (control)"}
 
 
 def _ordered(keys) -> list:

@@ -100,7 +100,8 @@ TASKS = {
                     TOPOLOGIES / "arm_expert.toml", "trace_error_mm", "pose_error.png",
                     "position error against the task's pose (mm)"),
 }
-MODALITIES = ("rgb", "event", "rgb+event")
+# the learned rows: the paper's three, and the rgb+diff control when asked for by name
+MODALITIES = ("rgb", "event", "rgb+event", "rgb+diff")
 BASELINE = "no_action"
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
@@ -282,8 +283,8 @@ class EvalPlan:
             return self.policy_topology, common + sets + self.extra
         sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{run.modality}"]']
-        if run.modality == "rgb":   # no events wired: emulator and accumulator are pruned
-            sets.append('policy.inputs={rgb="camera/rgb"}')
+        if run.modality in ("rgb", "rgb+diff"):   # no events wired: emulator and
+            sets.append('policy.inputs={rgb="camera/rgb"}')   # accumulator are pruned
         else:
             sets += self.event_frame_overrides(run.modality)
         return self.policy_topology, common + sets + self.extra

@@ -75,8 +75,11 @@ def register(subparsers) -> None:
                     "ReduceLROnPlateau, Smooth L1). Writes <out>/<task>-<modality>.pt and "
                     ".json, loss CSVs and <out>/<task>-losses.png.")
     t.add_argument("--task", required=True, choices=["nav", "arm"])
-    t.add_argument("--modality", required=True, choices=["rgb", "event", "rgb+event", "all"],
-                   help="'all' trains the three variants one after another")
+    t.add_argument("--modality", required=True,
+                   choices=["rgb", "event", "rgb+event", "all", "rgb+diff"],
+                   help="'all' trains the three variants one after another; rgb+diff is a "
+                        "control, not one of them: the RGB frame and its change since the "
+                        "previous tick's, as a frame camera would give (docs/policy.md)")
     t.add_argument("--data", required=True, help="dataset directory (index.json + episodes)")
     t.add_argument("--out", required=True, help="where checkpoints and curves go")
     t.add_argument("--size", type=_size, default=160,

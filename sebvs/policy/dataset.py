@@ -111,6 +111,17 @@ def split_episodes(episodes: list[dict], val_fraction: float, seed: int
     return [episodes[i] for i in train], [episodes[i] for i in val]
 
 
+def previous_rgb(ep: Episode, t: int) -> np.ndarray:
+    """The RGB frame of the control tick before row t's, from the same episode; row t's own
+    where there is none (the episode's first row, or a lost row before t): no change, as the
+    policy actor sees it at an episode's start (sebvs/policy/infer.py, `PreviousFrame`)."""
+    if t > 0:
+        ticks = ep.tick[t - 1:t + 1]
+        if int(ticks[1]) - int(ticks[0]) == 1:
+            return ep.rgb[t - 1]
+    return ep.rgb[t]
+
+
 class EpisodeFrames:
     """A map-style dataset: item i -> (x float32 [C, S, S], y float32 [2] or [6]).
 
@@ -170,7 +181,8 @@ class EpisodeFrames:
         ei, t = (int(v) for v in self.pairs[i])
         ep = self._episode(ei)
         frames = {"rgb": ep.rgb, "events": ep.event_frame}
-        streams = {s: frames[s][t] for s in MODALITY_INPUTS[self.modality]}
+        streams = {s: previous_rgb(ep, t) if s == "rgb_prev" else frames[s][t]
+                   for s in MODALITY_INPUTS[self.modality]}
         x = model_input(self.modality, self.norm, **streams)
         y = np.asarray(ep.target[t], dtype=np.float32)
         return x, y

@@ -2,7 +2,8 @@
 
 ``PolicySet`` holds one model per modality (all loaded up front, so a modality swap costs
 no load time) and turns one observation into one action. ``TickSync`` keeps the latest few
-frames of each stream by tick and says which tick is complete for a modality. The policy
+frames of each stream by tick and says which tick is complete for a modality;
+``PreviousFrame`` the previous tick's RGB frame for the rgb+diff control. The policy
 actor (actors/policy.py) only wires these to the runtime.
 """
 from __future__ import annotations
@@ -84,19 +85,41 @@ class PolicySet:
         for m, p in self.policies.items():
             s, planes = p.norm.size, 2 * p.norm.event_bins
             self.act(m, rgb=np.zeros((s, s, 3), np.uint8),
-                     events=np.zeros((planes, s, s), np.uint8))
+                     events=np.zeros((planes, s, s), np.uint8),
+                     rgb_prev=np.zeros((s, s, 3), np.uint8))
 
     def act(self, modality: str, *, rgb: np.ndarray | None = None,
-            events: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+            events: np.ndarray | None = None,
+            rgb_prev: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
         """Observation -> (output float32 [2] | [6], preprocess ms, inference ms)."""
         p = self.policies[modality]
         t0 = time.perf_counter()
-        x = model_input(modality, p.norm, rgb=rgb, events=events)
+        x = model_input(modality, p.norm, rgb=rgb, events=events, rgb_prev=rgb_prev)
         t1 = time.perf_counter()
         with self._torch.inference_mode():
             y = p.run(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
         t2 = time.perf_counter()
         return y, (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+
+class PreviousFrame:
+    """The frame of the previous control tick of the same episode, for the rgb+diff control.
+
+    ``swap(episode, tick, frame)`` returns the frame held for ``tick - 1`` of ``episode``,
+    or ``frame`` itself where there is none (an episode's first tick, a skipped tick, a
+    new size): no change, as training sees an episode's first row
+    (sebvs/policy/dataset.py, `previous_rgb`). It then holds a copy of ``frame``.
+    """
+
+    def __init__(self):
+        self.episode, self.tick, self.frame = None, None, None
+
+    def swap(self, episode, tick: int, frame: np.ndarray) -> np.ndarray:
+        held = self.frame
+        follows = (held is not None and episode == self.episode and self.tick is not None
+                   and tick == self.tick + 1 and held.shape == frame.shape)
+        self.episode, self.tick, self.frame = episode, tick, np.array(frame)
+        return held if follows else self.frame
 
 
 class TickSync:

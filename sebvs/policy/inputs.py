@@ -5,8 +5,13 @@
             K = event_bins time bins per polarity over the accumulator's window: K = 1 is
             the paper's counts (channel 0 ON, 1 OFF); K > 1 the accumulator's "histogram"
             (ON bins oldest first, then OFF bins)
+    rgb_prev uint8 [H, W, 3], the RGB frame of the previous control tick in the same
+            episode (the control modality "rgb+diff" only) -> float32 [2, S, S] in [0, 1]:
+            the lin-log luma change since it, increase then decrease, in units of the
+            emulator's paper thresholds, clipped at event_clip and scaled as event counts
+            (`diff_input`)
     model input for a modality = the per-modality tensors concatenated, rgb first:
-            rgb -> 3 ch, event -> 2K ch, rgb+event -> 3 + 2K ch
+            rgb -> 3 ch, event -> 2K ch, rgb+event -> 3 + 2K ch, rgb+diff -> 3 + 2 ch
 
 Resizing: when a recorded frame is not S x S it is resized with cv2.INTER_AREA (an area
 average: no aliasing on the way down, and for event counts it keeps the mean density).
@@ -25,9 +30,18 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from sebvs.dvs.emulator import linlog
+from sebvs.dvs.params import PRESETS
+
 MODALITIES = ("rgb", "event", "rgb+event")
+# controls: not the paper's modalities, but inputs that test a claim about them. rgb+diff
+# asks whether events give a policy more than a frame camera's own change between two
+# frames would (docs/results.md, "Events against a frame difference"). Trained and
+# evaluated when named; never part of "all" or of the default rows
+CONTROL_MODALITIES = ("rgb+diff",)
 # which observation streams a modality reads, in channel order
-MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "events")}
+MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "events"),
+                   "rgb+diff": ("rgb", "rgb_prev")}
 
 
 # input sides by name: the CPU default (100 tokens) and the paper's (1600, for GPUs)
@@ -52,25 +66,28 @@ def parse_size(value: str | int) -> int:
 
 
 def channels(modality: str, event_bins: int = 1) -> int:
-    """Input channels of a modality's model: rgb 3, event 2K, rgb+event 3 + 2K."""
+    """Input channels of a modality's model: rgb 3, event 2K, rgb+event 3 + 2K,
+    rgb+diff 5."""
     check_modality(modality)
-    per_stream = {"rgb": 3, "events": 2 * event_bins}
+    per_stream = {"rgb": 3, "events": 2 * event_bins, "rgb_prev": 2}
     return sum(per_stream[s] for s in MODALITY_INPUTS[modality])
 
 
 def channel_names(modality: str, event_bins: int = 1) -> list[str]:
     """The model's input channels in order: r, g, b, then on, off (counts) or
-    on_t0 .. on_t{K-1}, off_t0 .. off_t{K-1} (time bins, oldest first)."""
+    on_t0 .. on_t{K-1}, off_t0 .. off_t{K-1} (time bins, oldest first), or up, down (the
+    frame difference of rgb+diff)."""
     check_modality(modality)
     events = (["on", "off"] if event_bins == 1 else
               [f"{p}_t{k}" for p in ("on", "off") for k in range(event_bins)])
-    names = {"rgb": ["r", "g", "b"], "events": events}
+    names = {"rgb": ["r", "g", "b"], "events": events, "rgb_prev": ["up", "down"]}
     return [c for s in MODALITY_INPUTS[modality] for c in names[s]]
 
 
 def check_modality(modality: str) -> None:
     if modality not in MODALITY_INPUTS:
-        raise ValueError(f"unknown modality {modality!r} (one of {', '.join(MODALITIES)})")
+        raise ValueError(f"unknown modality {modality!r} (one of "
+                         f"{', '.join(MODALITIES + CONTROL_MODALITIES)})")
 
 
 @dataclass(frozen=True)
@@ -142,8 +159,38 @@ def _event_table(clip: int) -> np.ndarray:
     return (np.minimum(np.arange(256), clip) / clip).astype(np.float32)
 
 
+def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation) -> np.ndarray:
+    """Two RGB uint8 [H, W, 3] frames, the earlier one second -> float32 [2, S, S] in [0, 1]:
+    the lin-log luma change from `rgb_prev` to `rgb`, its increase in channel 0 and its
+    decrease in channel 1, each divided by the emulator's paper threshold (ON, OFF),
+    clipped at `norm.event_clip` and scaled by it, as event counts are.
+
+    What an ideal, noiseless event sensor at the frame's resolution would count between
+    the two frames, without its threshold's rounding: the frame camera's own motion cue,
+    made on the same scale as the events it is compared with. Luma is BT.601 of the 8-bit
+    frame (the emulator's luma is 8-bit too), through the emulator's lin-log.
+    """
+    if rgb_prev.shape != rgb.shape or rgb_prev.dtype != np.uint8:
+        raise ValueError(f"rgb_prev must be uint8 {list(rgb.shape)} like rgb, got "
+                         f"{rgb_prev.dtype} {list(rgb_prev.shape)}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
+    paper = PRESETS["paper"]
+    now, before = (linlog(cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY))
+                   for f in (rgb, rgb_prev))
+    change = now - before
+    clip = float(norm.event_clip)
+    out = np.empty((2, norm.size, norm.size), np.float32)
+    for c, (signed, threshold) in enumerate(((change, paper.pos_thres),
+                                             (-change, paper.neg_thres))):
+        plane = np.clip(signed / np.float32(threshold), 0.0, clip) / np.float32(clip)
+        out[c] = _resize(plane.astype(np.float32), norm.size)
+    return out
+
+
 def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,
-                events: np.ndarray | None = None) -> np.ndarray:
+                events: np.ndarray | None = None,
+                rgb_prev: np.ndarray | None = None) -> np.ndarray:
     """The observation a modality needs -> float32 [C, S, S] (rgb channels first)."""
     check_modality(modality)
     parts = []
@@ -152,6 +199,11 @@ def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = 
             if rgb is None:
                 raise ValueError(f"modality {modality!r} needs an rgb frame")
             parts.append(rgb_input(rgb, norm))
+        elif stream == "rgb_prev":
+            if rgb is None or rgb_prev is None:
+                raise ValueError(f"modality {modality!r} needs an rgb frame and the "
+                                 f"previous tick's")
+            parts.append(diff_input(rgb, rgb_prev, norm))
         else:
             if events is None:
                 raise ValueError(f"modality {modality!r} needs an event frame")

@@ -23,7 +23,8 @@ from pathlib import Path
 from .checkpoint import model_config, save_checkpoint
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, dataset_hash,
                       event_frames_of, load_index, split_episodes)
-from .inputs import MODALITIES, MODALITY_INPUTS, Normalisation, channels, check_modality
+from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
+                     check_modality)
 
 
 @dataclass
@@ -249,14 +250,15 @@ def plot_losses(out: str | Path, task: str) -> Path | None:
     import matplotlib.pyplot as plt
     out = Path(out)
     curves = {}
-    for m in MODALITIES:
+    for m in MODALITIES + CONTROL_MODALITIES:
         p = out / f"{task}-{m}-losses.csv"
         if p.exists():
             with open(p) as f:
                 curves[m] = list(csv.DictReader(f))
     if not curves:
         return None
-    colours = {"rgb": "tab:blue", "event": "tab:orange", "rgb+event": "tab:green"}
+    colours = {"rgb": "tab:blue", "event": "tab:orange", "rgb+event": "tab:green",
+               "rgb+diff": "tab:purple"}
     fig, ax = plt.subplots(figsize=(6, 4))
     for m, rows in curves.items():
         ep = [int(r["epoch"]) for r in rows]
