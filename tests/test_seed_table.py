@@ -83,3 +83,29 @@ def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
         assert (tmp_path / "seeds.png").stat().st_size > 5000
         assert tool.main([f"s0={tmp_path / 's0'}", f"s1={tmp_path / 'nope'}", "--a", "rgb+event",
                           "--b", "rgb"]) == 2
+
+
+def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
+    """NAME=DIR given twice: a seed whose control was evaluated after, into its own
+    directory."""
+    def only(res, modality):
+        return {**res, "episodes": [e for e in res["episodes"] if e["modality"] == modality]}
+    runs = {"s0": results({"fast/multi": [True, True]}, {"fast/multi": [False, True]}),
+            "s1": results({"fast/multi": [True, False]}, {"fast/multi": [False, False]})}
+    for name, res in runs.items():
+        for modality in ("rgb+event", "rgb"):
+            d = tmp_path / f"{name}-{modality}"
+            d.mkdir()
+            (d / "results.json").write_text(json.dumps(only(res, modality)))
+    out = tmp_path / "t.json"
+    spec = [f"{n}={tmp_path / (n + '-' + m)}" for n in runs for m in ("rgb+event", "rgb")]
+    with tool_module("seed_table") as tool:
+        assert tool.main([*spec, "--a", "rgb+event", "--b", "rgb", "--json", str(out)]) == 0
+        joined = json.loads(out.read_text())["cells"]["fast/multi"]
+        assert joined == tool.seed_table(runs, "rgb+event", "rgb")["cells"]["fast/multi"]
+        parts = [("x", runs["s0"]), ("y", only(runs["s0"], "rgb"))]
+        with pytest.raises(ValueError, match="x and y both hold 'rgb' episodes"):
+            tool.merge_runs(parts)
+        with pytest.raises(ValueError, match="y differs from x in seed"):
+            tool.merge_runs([("x", only(runs["s0"], "rgb")),
+                             ("y", {**only(runs["s0"], "rgb+event"), "seed": 9})])

@@ -7,7 +7,9 @@ of the modality, or because of one training run?
         --plot docs/figures/seeds.png
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
-one seed; all must have played the same task and topology seed (the same episodes). Per
+one seed; a NAME given again joins another directory to that run (where its modalities
+were evaluated apart, each modality in one of them). All must have played the same task
+and topology seed (the same episodes). Per
 condition and scenario, one row: each run's A - B (points, over the episodes both
 scored), the mean over runs of A, B and A - B, how many runs have A ahead, and a paired
 test over the episodes of the outcomes averaged over the runs (the episode is the unit:
@@ -39,6 +41,25 @@ def _scored(episodes: dict, key, metric: str) -> float | None:
     e = episodes.get(key)
     v = None if e is None else e["metrics"].get(metric)
     return None if v is None else float(v)
+
+
+def merge_runs(parts: list[tuple[str, dict]]) -> dict:
+    """One training seed's evaluations, made into separate directories ((label, results)
+    each), as one results dict. Refused: parts of other episodes (task or topology seed),
+    or a modality held by two parts (which would be the run's?)."""
+    (first_label, first), held = parts[0], {}
+    for label, res in parts:
+        for key in ("task", "seed"):
+            if res.get(key) != first.get(key):
+                raise ValueError(f"{label} differs from {first_label} in {key} "
+                                 f"({res.get(key)!r} vs {first.get(key)!r}): not the same "
+                                 f"episodes")
+        for m in sorted({e["modality"] for e in res["episodes"]}):
+            if m in held:
+                raise ValueError(f"{held[m]} and {label} both hold {m!r} episodes: give "
+                                 f"each modality from one directory")
+            held[m] = label
+    return {**first, "episodes": [e for _, res in parts for e in res["episodes"]]}
 
 
 def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
@@ -157,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", metavar="NAME=DIR",
-                    help="an `sebvs eval --out` directory per training seed")
+                    help="an `sebvs eval --out` directory per training seed (a NAME given "
+                         "again adds a directory to that seed's run)")
     ap.add_argument("--a", required=True, help="modality A (e.g. rgb+event)")
     ap.add_argument("--b", required=True, help="modality B (e.g. rgb)")
     ap.add_argument("--metric", help="episode metric (default: the task's first)")
@@ -168,15 +190,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write the table here")
     ap.add_argument("--plot", type=Path, help="also draw the differences here (PNG)")
     args = ap.parse_args(argv)
-    runs = {}
+    parts: dict[str, list[tuple[str, dict]]] = {}
     for spec in args.runs:
         name, sep, path = spec.partition("=")
         if not sep or not name or not path:
             ap.error(f"a run is NAME=DIR, got {spec!r}")
-        if name in runs:
-            ap.error(f"run name {name!r} given twice")
         try:
-            runs[name] = read_results(Path(path))
+            parts.setdefault(name, []).append((path, read_results(Path(path))))
+        except ValueError as exc:
+            print(f"seed_table: run {name!r}: {exc}", file=sys.stderr)
+            return 2
+    runs = {}
+    for name, dirs in parts.items():
+        try:
+            runs[name] = merge_runs(dirs)
         except ValueError as exc:
             print(f"seed_table: run {name!r}: {exc}", file=sys.stderr)
             return 2
