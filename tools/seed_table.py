@@ -9,8 +9,9 @@ of the modality, or because of one training run?
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
 one seed; a NAME given again joins another directory to that run (where its modalities
 were evaluated apart, each modality in one of them). All must have played the same task
-and topology seed (the same episodes). Per
-condition and scenario, one row: each run's A - B (points, over the episodes both
+and topology seed (the same episodes).
+
+Per condition and scenario, one row: each run's A - B (points, over the episodes both
 scored), the mean over runs of A, B and A - B, how many runs have A ahead, and a paired
 test over the episodes of the outcomes averaged over the runs (the episode is the unit:
 bootstrap 95 % interval and exact sign test, sebvs/metrics.py paired_comparison).
