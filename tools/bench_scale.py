@@ -17,10 +17,17 @@ one worker, with and without Ray's start-up (timed alone: ray.init + shutdown). 
 average before and after each job is recorded: on a shared machine the speed-up is
 depressed by whatever else runs.
 
+Sizes: the default (5 runs x 4 eval episodes, 8 recorded, 4 s each) and --quick are
+small, so a topology's fixed start-up (processes, imports, MuJoCo compile, GL contexts:
+about 1.5 s, paid once per worker) weighs on them; `--size paper` records issue 18's
+yardstick instead, the paper's nav set of 70 episodes of 30 s (about 6 min at one worker
+here), where it is amortised as in a real recording (record only: `--jobs record`).
+
 Targets (issue 17): speed-up at 2 workers >= 1.7x on a 2-core machine, >= 0.8 x workers on
 16 cores; Ray's overhead per episode < 5 % of an episode's wall time.
 
-    tools/bench_scale.py [--quick] [--repeats N] [--json FILE] [--no-ray]
+    tools/bench_scale.py [--quick | --size paper] [--jobs eval,record] [--repeats N]
+                         [--json FILE] [--no-ray]
 """
 from __future__ import annotations
 
@@ -38,6 +45,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tools.benchio import print_report  # noqa: E402
+
+
+# episodes and episode seconds per job: eval (per run) and record
+SIZES = {"quick": {"eval": (2, 2.0), "record": (4, 2.0)},
+         "default": {"eval": (4, 4.0), "record": (8, 4.0)},
+         "paper": {"eval": (4, 4.0), "record": (70, 30.0)}}
 
 
 def worker_counts() -> list[int]:
@@ -151,13 +164,25 @@ def main() -> int:
                                  formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true",
                     help="2 eval episodes per run and 4 recorded, 2 s each, one repeat")
+    ap.add_argument("--size", choices=sorted(SIZES), default="default",
+                    help="episodes per job: default 4 per eval run and 8 recorded, 4 s each; "
+                         "paper: 70 recorded of 30 s (issue 18's nav set; the eval job "
+                         "keeps the default size)")
+    ap.add_argument("--jobs", default="eval,record",
+                    help="which jobs, comma-separated (eval, record; default both)")
     ap.add_argument("--repeats", type=int, default=0,
                     help="runs per worker count, median reported (default 1 quick, else 3)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--no-ray", action="store_true", help="skip the Ray comparison")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
-    eval_eps, record_eps, episode_s = (2, 4, 2.0) if args.quick else (4, 8, 4.0)
+    jobs = [j for j in args.jobs.split(",") if j]
+    unknown = [j for j in jobs if j not in ("eval", "record")]
+    if unknown or not jobs:
+        ap.error(f"--jobs: {', '.join(unknown) or 'none'}: give eval, record or both")
+    if args.quick and args.size != "default":
+        ap.error("--quick and --size: give one")
+    size = SIZES["quick" if args.quick else args.size]
     ray = not args.no_ray
     if ray:
         try:
@@ -167,7 +192,8 @@ def main() -> int:
                   flush=True)
             ray = False
     counts = worker_counts()
-    report: dict = {"config": {"quick": args.quick, "repeats": repeats,
+    report: dict = {"config": {"quick": args.quick, "size": "quick" if args.quick
+                               else args.size, "repeats": repeats,
                                "statistic": "median", "cpu_count": os.cpu_count(),
                                "worker_counts": counts, "clock": "lockstep"},
                     "jobs": []}
@@ -175,10 +201,14 @@ def main() -> int:
     eval_runs = 5
     with tempfile.TemporaryDirectory(prefix="bench_scale-") as tmp:
         tmp = Path(tmp)
-        report["jobs"].append(bench_job("eval", eval_cmd, eval_runs * eval_eps, eval_eps,
-                                        episode_s, counts, repeats, tmp, ray))
-        report["jobs"].append(bench_job("record", record_cmd, record_eps, record_eps,
-                                        episode_s, counts, repeats, tmp, False))
+        if "eval" in jobs:
+            eps, episode_s = size["eval"]
+            report["jobs"].append(bench_job("eval", eval_cmd, eval_runs * eps, eps,
+                                            episode_s, counts, repeats, tmp, ray))
+        if "record" in jobs:
+            eps, episode_s = size["record"]
+            report["jobs"].append(bench_job("record", record_cmd, eps, eps, episode_s,
+                                            counts, repeats, tmp, False))
     print_report(report, args.json)
     return 0
 
