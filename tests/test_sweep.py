@@ -76,6 +76,10 @@ def test_points_are_the_product_of_the_axes_named_by_their_values():
     p = grid.points()[1]
     assert p.settings == {"modality": "rgb+event", "epochs": 3, "seed": 2, "lr": 5e-4,
                           "stem": "conv"}
+    # the rgb+diff control sweeps like the paper's modalities
+    assert [p.name for p in parse_grid({"task": "arm", "data": "d", "axes": {
+        "modality": ["rgb+event", "rgb+diff"]}}).points()] == \
+        ["modality=rgb+event__seed=0", "modality=rgb+diff__seed=0"]
     assert parse_grid({"task": "nav", "data": "d", "train": {"modality": "rgb"},
                        "axes": {"size": ["paper"]}}).points()[0].name == \
         "modality=rgb__seed=0__size=640"
@@ -90,7 +94,7 @@ def test_points_are_the_product_of_the_axes_named_by_their_values():
     ({"task": "nav", "data": "d", "train": {"modality": "rgb"}, "axes": {"lr": [1e-3, 0.001]}},
      r"\[axes\] lr: 0.001 listed twice"),
     ({"task": "nav", "data": "d", "axes": {"modality": ["rgb", "depth"]}},
-     r"\[axes\] modality\[1\]: expected one of rgb, event, rgb\+event, got 'depth'"),
+     r"\[axes\] modality\[1\]: expected one of rgb, event, rgb\+event, rgb\+diff, got 'depth'"),
     ({"task": "nav", "data": "d", "train": {"modality": "rgb", "size": 40}},
      r"\[train\] size: size 40 must be a positive multiple of 16"),
     ({"task": "nav", "data": "d", "train": {"modality": "rgb", "epochs": 0}},

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from .inputs import MODALITIES, parse_size
+from .inputs import CONTROL_MODALITIES, MODALITIES, parse_size
 
 TASKS = ("nav", "arm")
 STEMS = ("patch", "conv", "dual", "gated")    # model.STEMS, named without importing torch
@@ -90,7 +90,7 @@ def _size(value: Any) -> int:
 
 # setting -> check (returns the value in its canonical type, or raises ValueError saying why)
 SETTINGS: dict[str, Callable[[Any], Any]] = {
-    "modality": _one_of(MODALITIES),
+    "modality": _one_of(MODALITIES + CONTROL_MODALITIES),
     "seed": _integer(0),
     "lr": _positive,
     "stem": _one_of(STEMS),
