@@ -10,8 +10,8 @@ Each runs at workers 1, 2, 4, ... up to os.cpu_count() (the local pool, `--worke
 each figure is the median wall time of `--repeats` runs, alternating the worker counts
 within a repeat so a slow phase of a shared machine hits all of them. Reported per job:
 episodes per second, speed-up against workers 1, and the cores the run kept busy (CPU
-seconds of the command and everything it started, per wall second). Ray: the eval again with
-`--ray --workers 2` (a local Ray started by the command); its overhead per episode is
+seconds of the command and everything it started, per wall second). Ray: each job again
+with `--ray --workers 2` (a local Ray started by the command); its overhead per episode is
 (Ray wall - pool wall at 2 workers) / episodes, as a fraction of an episode's wall time at
 one worker, with and without Ray's start-up (timed alone: ray.init + shutdown). The load
 average before and after each job is recorded: on a shared machine the speed-up is
@@ -208,7 +208,7 @@ def main() -> int:
         if "record" in jobs:
             eps, episode_s = size["record"]
             report["jobs"].append(bench_job("record", record_cmd, eps, eps, episode_s,
-                                            counts, repeats, tmp, False))
+                                            counts, repeats, tmp, ray))
     print_report(report, args.json)
     return 0
 
