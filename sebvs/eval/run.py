@@ -40,6 +40,8 @@ from tqdm import tqdm
 
 from ..data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS, SeedRange
 from ..policy.checkpoint import checkpoint_paths, read_config
+from ..policy.inputs import CONTROL_MODALITIES, MODALITY_INPUTS
+from ..policy.inputs import MODALITIES as PAPER_MODALITIES
 from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
 from .report import plot_success, render_report
@@ -101,7 +103,7 @@ TASKS = {
                     "position error against the task's pose (mm)"),
 }
 # the learned rows: the paper's three, and the rgb+diff control when asked for by name
-MODALITIES = ("rgb", "event", "rgb+event", "rgb+diff")
+MODALITIES = PAPER_MODALITIES + CONTROL_MODALITIES
 BASELINE = "no_action"
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
@@ -245,7 +247,7 @@ class EvalPlan:
                 f"video.label={json.dumps(run.modality)}"]
         if isinstance(hz, (int, float)) and hz > 0:
             sets.append(f"video.fps={float(hz)}")
-        if run.modality in ("event", "rgb+event"):
+        if "events" in MODALITY_INPUTS.get(run.modality, ()):
             sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
         return sets
 
@@ -283,8 +285,8 @@ class EvalPlan:
             return self.policy_topology, common + sets + self.extra
         sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{run.modality}"]']
-        if run.modality in ("rgb", "rgb+diff"):   # no events wired: emulator and
-            sets.append('policy.inputs={rgb="camera/rgb"}')   # accumulator are pruned
+        if "events" not in MODALITY_INPUTS[run.modality]:   # no events wired: the
+            sets.append('policy.inputs={rgb="camera/rgb"}')   # event chain is pruned
         else:
             sets += self.event_frame_overrides(run.modality)
         return self.policy_topology, common + sets + self.extra
