@@ -7,7 +7,8 @@ import torch
 
 from sebvs.policy.checkpoint import load_checkpoint, model_config, save_checkpoint
 from sebvs.policy.infer import PolicySet, TickSync
-from sebvs.policy.inputs import Normalisation, channels, event_input, model_input, rgb_input
+from sebvs.policy.inputs import (Normalisation, channels, diff_input, event_input, model_input,
+                                 rgb_input)
 from sebvs.policy.model import ERP, count_parameters, sinusoidal_positions_2d
 
 torch.set_num_threads(1)
@@ -171,6 +172,27 @@ def test_normalisation_round_trip():
     assert np.allclose(both[:3], 1) and np.allclose(both[3:], 0.5)
     with pytest.raises(ValueError, match="needs an event frame"):
         model_input("event", norm, rgb=rgb)
+
+
+@pytest.mark.parametrize("modality", ["rgb", "event", "rgb+event", "rgb+diff"])
+def test_model_input_fills_one_array_with_each_stream_as_alone(modality):
+    """Written in place, channel block by channel block: the same values, bit for bit, as
+    each stream's own function (so lockstep results do not move), into a reused buffer."""
+    rng = np.random.default_rng(3)
+    norm = Normalisation(size=32, event_bins=2)
+    rgb, prev = (rng.integers(0, 256, (48, 40, 3), dtype=np.uint8) for _ in range(2))
+    ev = rng.integers(0, 12, (4, 16, 16), dtype=np.uint8)
+    blocks = {"rgb": [rgb_input(rgb, norm)], "event": [event_input(ev, norm)],
+              "rgb+event": [rgb_input(rgb, norm), event_input(ev, norm)],
+              "rgb+diff": [rgb_input(rgb, norm), diff_input(rgb, prev, norm)]}[modality]
+    buf = np.full((channels(modality, 2), 32, 32), np.nan, np.float32)
+    x = model_input(modality, norm, rgb=rgb, events=ev, rgb_prev=prev, out=buf)
+    assert x is buf
+    np.testing.assert_array_equal(x, np.concatenate(blocks))
+    np.testing.assert_array_equal(model_input(modality, norm, rgb=rgb, events=ev,
+                                              rgb_prev=prev), x)
+    with pytest.raises(ValueError, match=r"out must be float32 \["):
+        model_input(modality, norm, rgb=rgb, events=ev, rgb_prev=prev, out=buf[1:])
 
 
 def test_checkpoint_loads_weights_only_and_refuses_mismatch(tmp_path):

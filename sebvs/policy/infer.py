@@ -70,6 +70,10 @@ class PolicySet:
             if why:
                 self.fallbacks[m] = why
             self.policies[m] = LoadedPolicy(model, cfg, norm, str(path), run, used)
+        # one input array per modality, refilled every call: no per-tick allocation (the
+        # model reads it within act(), and act() returns a copy of the output)
+        self._inputs = {m: np.empty((p.model.in_channels, p.norm.size, p.norm.size),
+                                    np.float32) for m, p in self.policies.items()}
         tasks = {p.config["task"] for p in self.policies.values()}
         if len(tasks) != 1:
             raise ValueError(f"checkpoints mix tasks {sorted(tasks)}: one policy, one task")
@@ -94,7 +98,8 @@ class PolicySet:
         """Observation -> (output float32 [2] | [6], preprocess ms, inference ms)."""
         p = self.policies[modality]
         t0 = time.perf_counter()
-        x = model_input(modality, p.norm, rgb=rgb, events=events, rgb_prev=rgb_prev)
+        x = model_input(modality, p.norm, rgb=rgb, events=events, rgb_prev=rgb_prev,
+                        out=self._inputs[modality])
         t1 = time.perf_counter()
         with self._torch.inference_mode():
             y = p.run(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)

@@ -119,28 +119,41 @@ def _resize(img: np.ndarray, size: int) -> np.ndarray:
     return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
 
 
-def rgb_input(rgb: np.ndarray, norm: Normalisation) -> np.ndarray:
-    """RGB uint8 [H, W, 3] -> float32 [3, S, S] in [0, 1]."""
+def _output(out: np.ndarray | None, planes: int, size: int) -> np.ndarray:
+    """``out`` (float32 [planes, S, S], written in place), or a new such array."""
+    if out is None:
+        return np.empty((planes, size, size), np.float32)
+    if out.shape != (planes, size, size) or out.dtype != np.float32:
+        raise ValueError(f"out must be float32 [{planes}, {size}, {size}], got {out.dtype} "
+                         f"{list(out.shape)}")
+    return out
+
+
+def rgb_input(rgb: np.ndarray, norm: Normalisation, out: np.ndarray | None = None
+              ) -> np.ndarray:
+    """RGB uint8 [H, W, 3] -> float32 [3, S, S] in [0, 1] (into ``out`` when given)."""
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
     img = _resize(np.ascontiguousarray(rgb), norm.size)
     # split into planes on uint8, then widen: ~10x faster than a float HWC -> CHW transpose
-    out = np.empty((3, norm.size, norm.size), np.float32)
+    out = _output(out, 3, norm.size)
     for c, plane in enumerate(cv2.split(img)):
         out[c] = plane
     out *= np.float32(norm.rgb_scale)
     return out
 
 
-def event_input(events: np.ndarray, norm: Normalisation) -> np.ndarray:
-    """Event counts uint8 [2K, H, W] (ON bins, OFF bins) -> float32 [2K, S, S] in [0, 1]."""
+def event_input(events: np.ndarray, norm: Normalisation, out: np.ndarray | None = None
+                ) -> np.ndarray:
+    """Event counts uint8 [2K, H, W] (ON bins, OFF bins) -> float32 [2K, S, S] in [0, 1]
+    (into ``out`` when given)."""
     planes = 2 * norm.event_bins
     if events.ndim != 3 or events.shape[0] != planes:
         what = ("[2, H, W] (ON, OFF counts)" if planes == 2 else
                 f"[{planes}, H, W] ({norm.event_bins} time bins per polarity)")
         raise ValueError(f"events must be {what}, got {list(events.shape)}")
     table = _event_table(norm.event_clip)
-    out = np.empty((planes, norm.size, norm.size), np.float32)
+    out = _output(out, planes, norm.size)
     for c in range(planes):
         # per polarity on a contiguous 2-D plane: one table lookup clips, scales and widens
         # to float32 (4x faster than min + astype + multiply), then the area resize
@@ -159,7 +172,8 @@ def _event_table(clip: int) -> np.ndarray:
     return (np.minimum(np.arange(256), clip) / clip).astype(np.float32)
 
 
-def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation) -> np.ndarray:
+def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation,
+               out: np.ndarray | None = None) -> np.ndarray:
     """Two RGB uint8 [H, W, 3] frames, the earlier one second -> float32 [2, S, S] in [0, 1]:
     the lin-log luma change from `rgb_prev` to `rgb`, its increase in channel 0 and its
     decrease in channel 1, each divided by the emulator's paper threshold (ON, OFF),
@@ -168,7 +182,8 @@ def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation) -> np
     What an ideal, noiseless event sensor at the frame's resolution would count between
     the two frames, without its threshold's rounding: the frame camera's own motion cue,
     made on the same scale as the events it is compared with. Luma is BT.601 of the 8-bit
-    frame (the emulator's luma is 8-bit too), through the emulator's lin-log.
+    frame (the emulator's luma is 8-bit too), through the emulator's lin-log. Written
+    into ``out`` when given.
     """
     if rgb_prev.shape != rgb.shape or rgb_prev.dtype != np.uint8:
         raise ValueError(f"rgb_prev must be uint8 {list(rgb.shape)} like rgb, got "
@@ -180,7 +195,7 @@ def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation) -> np
                    for f in (rgb, rgb_prev))
     change = now - before
     clip = float(norm.event_clip)
-    out = np.empty((2, norm.size, norm.size), np.float32)
+    out = _output(out, 2, norm.size)
     for c, (signed, threshold) in enumerate(((change, paper.pos_thres),
                                              (-change, paper.neg_thres))):
         plane = np.clip(signed / np.float32(threshold), 0.0, clip) / np.float32(clip)
@@ -189,23 +204,34 @@ def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation) -> np
 
 
 def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,
-                events: np.ndarray | None = None,
-                rgb_prev: np.ndarray | None = None) -> np.ndarray:
-    """The observation a modality needs -> float32 [C, S, S] (rgb channels first)."""
+                events: np.ndarray | None = None, rgb_prev: np.ndarray | None = None,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """The observation a modality needs -> float32 [C, S, S] (rgb channels first).
+
+    Each stream is written into its channels of one array: ``out`` when given (the policy
+    actor keeps one per modality), else a new one. Not a concatenation of per-stream
+    arrays: with two such arrays alive, each call paid ~0.2-0.4 ms in fresh pages at 160 px
+    (rgb+event: 404 us against 19 + 17 us for its two parts alone).
+    """
     check_modality(modality)
-    parts = []
+    out = _output(out, channels(modality, norm.event_bins), norm.size)
+    first = 0
     for stream in MODALITY_INPUTS[modality]:
         if stream == "rgb":
             if rgb is None:
                 raise ValueError(f"modality {modality!r} needs an rgb frame")
-            parts.append(rgb_input(rgb, norm))
+            rgb_input(rgb, norm, out[first:first + 3])
+            first += 3
         elif stream == "rgb_prev":
             if rgb is None or rgb_prev is None:
                 raise ValueError(f"modality {modality!r} needs an rgb frame and the "
                                  f"previous tick's")
-            parts.append(diff_input(rgb, rgb_prev, norm))
+            diff_input(rgb, rgb_prev, norm, out[first:first + 2])
+            first += 2
         else:
             if events is None:
                 raise ValueError(f"modality {modality!r} needs an event frame")
-            parts.append(event_input(events, norm))
-    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+            planes = 2 * norm.event_bins
+            event_input(events, norm, out[first:first + planes])
+            first += planes
+    return out
