@@ -69,8 +69,12 @@ def channels(modality: str, event_bins: int = 1) -> int:
     """Input channels of a modality's model: rgb 3, event 2K, rgb+event 3 + 2K,
     rgb+diff 5."""
     check_modality(modality)
-    per_stream = {"rgb": 3, "events": 2 * event_bins, "rgb_prev": 2}
-    return sum(per_stream[s] for s in MODALITY_INPUTS[modality])
+    return sum(_stream_channels(s, event_bins) for s in MODALITY_INPUTS[modality])
+
+
+def _stream_channels(stream: str, event_bins: int) -> int:
+    """Model input channels one observation stream becomes (rgb_prev: the frame difference)."""
+    return {"rgb": 3, "events": 2 * event_bins, "rgb_prev": 2}[stream]
 
 
 def channel_names(modality: str, event_bins: int = 1) -> list[str]:
@@ -199,7 +203,7 @@ def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation,
     for c, (signed, threshold) in enumerate(((change, paper.pos_thres),
                                              (-change, paper.neg_thres))):
         plane = np.clip(signed / np.float32(threshold), 0.0, clip) / np.float32(clip)
-        out[c] = _resize(plane.astype(np.float32), norm.size)
+        out[c] = _resize(plane.astype(np.float32, copy=False), norm.size)
     return out
 
 
@@ -217,21 +221,19 @@ def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = 
     out = _output(out, channels(modality, norm.event_bins), norm.size)
     first = 0
     for stream in MODALITY_INPUTS[modality]:
+        block = out[first:first + _stream_channels(stream, norm.event_bins)]
+        first += len(block)
         if stream == "rgb":
             if rgb is None:
                 raise ValueError(f"modality {modality!r} needs an rgb frame")
-            rgb_input(rgb, norm, out[first:first + 3])
-            first += 3
+            rgb_input(rgb, norm, block)
         elif stream == "rgb_prev":
             if rgb is None or rgb_prev is None:
                 raise ValueError(f"modality {modality!r} needs an rgb frame and the "
                                  f"previous tick's")
-            diff_input(rgb, rgb_prev, norm, out[first:first + 2])
-            first += 2
+            diff_input(rgb, rgb_prev, norm, block)
         else:
             if events is None:
                 raise ValueError(f"modality {modality!r} needs an event frame")
-            planes = 2 * norm.event_bins
-            event_input(events, norm, out[first:first + planes])
-            first += planes
+            event_input(events, norm, block)
     return out
