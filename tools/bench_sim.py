@@ -13,6 +13,10 @@ pipeline  real-time factor of the navigation expert topology with the event chai
           probe counts the event frames, so the entry says whether the event chain kept up
           (event_frames == ticks). Also topologies/nav_record.toml at dvs_hz 200 (the same
           chain with the recorder pacing the sim and writing HDF5): the recording speed.
+ceiling   CPU seconds per simulated second of a nav recording's compute with no runtime
+          around it (physics 1 kHz, luma at dvs_hz through the emulator, RGB at 10 Hz),
+          split by stage, and the real-time factor that bounds any placement on 1 and 2
+          cores: N / that (issue 18's 15x and 10x targets read against it)
 scene switch  milliseconds from a new model to its first frame: a fresh renderer against
           FrameRenderer.set_model() in a warm GL context (what a randomised recording's
           camera pays per episode)
@@ -26,6 +30,7 @@ each repeat, and reports the median per placement; `--pipeline-only` skips physi
 rendering.
 
     tools/bench_sim.py [--quick] [--json FILE] [--placement P[,P...]] [--pipeline-only]
+                       [--ceiling-only]
 """
 from __future__ import annotations
 
@@ -167,6 +172,83 @@ EVENT_CHAIN = [
 ]
 
 
+def bench_ceiling(seconds: float, dvs_hz: float = 200.0, luma_size: int = 160,
+                  rgb_hz: float = 10.0, rgb_size: int = 160, repeats: int = 3,
+                  variant: str = "indoor") -> dict:
+    """The compute of `seconds` of nav recording with no runtime around it, in one thread:
+    physics at 1 kHz (scripted target and stability check as the sim actor does them), a
+    luma frame at `dvs_hz` run through the emulator (paper preset), an RGB frame at
+    `rgb_hz`. CPU seconds per simulated second (`time.process_time`, so llvmpipe's render
+    threads count), split by stage; `ceiling_x_on_N_cores` = N / that: the real-time factor
+    no placement of the actors can beat on N cores, whatever the runtime costs (it costs
+    more than nothing). Median of `repeats`. `variant`: the nav scene's (nav_expert is
+    indoor; nav_record draws both, and the indoor checker floor makes more events)."""
+    from sebvs.dvs.emulator import EventEmulator
+    from sebvs.dvs.params import preset
+    scene = make_scene("nav", variant=variant, width=rgb_size, height=rgb_size)
+    model = scene.compile()
+    data = mujoco.MjData(model)
+    physics_hz = 1000.0
+    luma_every = round(physics_hz / dvs_hz)
+    rgb_every = round(physics_hz / rgb_hz)
+    steps = round(seconds * physics_hz)
+    rgb = np.empty((rgb_size, rgb_size, 3), np.uint8)
+    luma = np.empty((luma_size, luma_size), np.uint8)
+    runs = []
+    with FrameRenderer(model, rgb_size, rgb_size) as r:
+        luma_view = r.view(luma_size, luma_size) if luma_size != rgb_size else r
+        for _ in range(repeats):
+            scene.reset(model, data, np.random.default_rng(3))
+            mon = StabilityMonitor(model, scene.limits())
+            mon.reset(data)
+            scene.apply_command(model, data, np.array([0.3, 0.4]))
+            emulator = EventEmulator(preset("paper"))
+            cpu = {"physics": 0.0, "luma_render": 0.0, "emulator": 0.0, "rgb_render": 0.0}
+            events = 0
+            frames = {"luma": 0, "rgb": 0}
+            for k in range(1, steps + 1):
+                c0 = time.process_time()
+                scene.scripted(model, data)
+                mujoco.mj_step(model, data)
+                mon.check(model, data)
+                c1 = time.process_time()
+                cpu["physics"] += c1 - c0
+                rendered = None
+                if k % rgb_every == 0:      # RGB first, as the camera emits it
+                    r.update(data, "front")
+                    rendered = r.rgb(rgb)
+                    frames["rgb"] += 1
+                    c2 = time.process_time()
+                    cpu["rgb_render"] += c2 - c1
+                    c1 = c2
+                if k % luma_every == 0:
+                    if rendered is not None and luma_size == rgb_size:
+                        luma_view.luma(luma, src=rendered)   # the camera reuses the render
+                    else:
+                        luma_view.update(data, "front")
+                        luma_view.luma(luma)
+                    c2 = time.process_time()
+                    events += len(emulator.step(luma, round(data.time * 1e9)))
+                    frames["luma"] += 1
+                    c3 = time.process_time()
+                    cpu["luma_render"] += c2 - c1
+                    cpu["emulator"] += c3 - c2
+            runs.append({**{key: v / seconds for key, v in cpu.items()}, "events": events,
+                         "frames": frames})
+    per_s = {key: statistics.median(run[key] for run in runs) for key in
+             ("physics", "luma_render", "emulator", "rgb_render")}
+    total = sum(per_s.values())
+    return {"what": f"nav {variant}, physics 1 kHz + luma {luma_size} px at {dvs_hz:g} Hz through "
+                    f"the emulator + RGB {rgb_size} px at {rgb_hz:g} Hz, no runtime",
+            "cpu_s_per_sim_s": {key: round(v, 4) for key, v in per_s.items()},
+            "cpu_s_per_sim_s_total": round(total, 4),
+            "ceiling_x_on_1_core": round(1.0 / total, 2),
+            "ceiling_x_on_2_cores": round(2.0 / total, 2),
+            "events_per_run": [run["events"] for run in runs],
+            "frames_per_run": runs[0]["frames"],
+            "sim_s": seconds, "repeats": repeats}
+
+
 def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None = None) -> dict:
     """nav_expert + the event chain at `dvs_hz`, one episode of `seconds`: real-time factor
     from the probe's first to last RGB frame (start-up excluded), event frames against
@@ -234,6 +316,8 @@ def main() -> int:
     ap.add_argument("--no-pipeline", action="store_true", help="skip the topology run")
     ap.add_argument("--pipeline-only", action="store_true",
                     help="only the topology runs (no physics or render figures)")
+    ap.add_argument("--ceiling-only", action="store_true",
+                    help="only the compute ceiling (no physics, render or topology rows)")
     ap.add_argument("--placement", default="",
                     help="comma-separated [topology] placements to compare, alternating "
                          "(isolated, auto); default: the topology files' own")
@@ -245,7 +329,8 @@ def main() -> int:
                  "config": {"quick": args.quick, "repeats": repeats, "steps": steps,
                             "frames": frames, "statistic": "median"}}
     notes = []
-    for name in () if args.pipeline_only else SCENES:
+    figures = not (args.pipeline_only or args.ceiling_only)   # physics, render, switch rows
+    for name in SCENES if figures else ():
         try:
             for integ in sorted(INTEGRATORS):
                 sps = bench_physics(name, integ, steps, repeats)
@@ -261,7 +346,7 @@ def main() -> int:
     if not args.quick:
         jobs.append(("nav", {"variant": "indoor"}, "front", 640, ["rgb"]))
     jobs.append(("arm", {}, "wrist", 320, ["rgb"]))      # the issue's arm target
-    for name, config, cam, size, kinds in () if args.pipeline_only else jobs:
+    for name, config, cam, size, kinds in jobs if figures else ():
         try:
             for row in bench_render(name, config, cam, size, kinds, frames, repeats):
                 out["render"].append(row)
@@ -269,7 +354,7 @@ def main() -> int:
                       f"{row['kind']:6s} {row['fps']:8.1f} fps", flush=True)
         except Exception as exc:
             notes.append(f"render {name} {cam}: {type(exc).__name__}: {exc}")
-    for size in () if args.pipeline_only else (160, 80):   # the camera's RGB and luma sizes
+    for size in (160, 80) if figures else ():   # the camera's RGB and luma sizes
         try:
             row = bench_scene_switch(size, repeats)
             out.setdefault("scene_switch", []).append(row)
@@ -277,9 +362,22 @@ def main() -> int:
                   f"set_model {row['set_model_ms']} ms", flush=True)
         except Exception as exc:
             notes.append(f"scene switch {size}: {type(exc).__name__}: {exc}")
+    ceilings = [("indoor", 200.0, 160), ("outdoor", 200.0, 160), ("indoor", 200.0, 80),
+                ("indoor", 100.0, 160), ("outdoor", 100.0, 160)]
+    for variant, dvs_hz, luma_size in () if args.pipeline_only else ceilings:
+        try:
+            row = bench_ceiling(2.0 if args.quick else 5.0, dvs_hz, luma_size, repeats=repeats,
+                                variant=variant)
+            out.setdefault("ceiling", []).append(row)
+            print(f"ceiling {row['what']}: {row['cpu_s_per_sim_s_total']} CPU s per sim s "
+                  f"{row['cpu_s_per_sim_s']}, at most {row['ceiling_x_on_2_cores']}x real "
+                  f"time on 2 cores", flush=True)
+        except Exception as exc:
+            notes.append(f"ceiling {variant}, dvs {dvs_hz:g} Hz, luma {luma_size} px: "
+                         f"{type(exc).__name__}: {exc}")
     placements = [p.strip() for p in args.placement.split(",") if p.strip()] or [None]
     runs = args.repeats or (1 if args.quick else 3)
-    if not args.no_pipeline:
+    if not (args.no_pipeline or args.ceiling_only):
         try:
             for _ in range(runs):
                 for placement in placements:   # alternating: a slow phase hits both
