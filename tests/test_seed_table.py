@@ -109,3 +109,28 @@ def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
         with pytest.raises(ValueError, match="y differs from x in seed"):
             tool.merge_runs([("x", only(runs["s0"], "rgb")),
                              ("y", {**only(runs["s0"], "rgb+event"), "seed": 9})])
+
+
+def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
+    """NAME@TAG=DIR: the same modality from two directories (two sensors), paired by seed."""
+    def rgb_only(wins):
+        return results({}, {"fast/multi": wins})
+    dirs = {"s0": ([True, True, True], [True, False, False]),
+            "s1": ([True, True, False], [False, True, False])}
+    spec = []
+    for name, (sharp, blunt) in dirs.items():
+        for tag, wins in (("fr", sharp), ("", blunt)):
+            d = tmp_path / f"{name}{tag}"
+            d.mkdir()
+            (d / "results.json").write_text(json.dumps(rgb_only(wins)))
+            spec.append(f"{name}{'@' + tag if tag else ''}={d}")
+    out = tmp_path / "t.json"
+    with tool_module("seed_table") as tool:
+        assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out)]) == 0
+        with pytest.raises(SystemExit):
+            tool.main([f"s0@={tmp_path / 's0'}", "--a", "rgb", "--b", "rgb"])
+        assert tool.tagged(rgb_only([True]), "")["episodes"][0]["modality"] == "rgb"
+    cell = json.loads(out.read_text())["cells"]["fast/multi"]
+    assert cell["per_run"]["s0"]["diff"] == pytest.approx(2 / 3)
+    assert cell["per_run"]["s1"]["diff"] == pytest.approx(1 / 3)
+    assert cell["reading"] == "rgb@fr helps"

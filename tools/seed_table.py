@@ -8,8 +8,10 @@ of the modality, or because of one training run?
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
 one seed; a NAME given again joins another directory to that run (where its modalities
-were evaluated apart, each modality in one of them). All must have played the same task
-and topology seed (the same episodes).
+were evaluated apart, each modality in one of them). NAME@TAG=DIR renames that directory's
+modalities to MODALITY@TAG, so that one modality under two settings can be compared (a
+sensor, a recipe: --a event@fr --b event). All must have played the same task and
+topology seed (the same episodes).
 
 Per condition and scenario, one row: each run's A - B (points, over the episodes both
 scored), the mean over runs of A, B and A - B, how many runs have A ahead, and a paired
@@ -42,6 +44,14 @@ def _scored(episodes: dict, key, metric: str) -> float | None:
     e = episodes.get(key)
     v = None if e is None else e["metrics"].get(metric)
     return None if v is None else float(v)
+
+
+def tagged(results: dict, tag: str) -> dict:
+    """``results`` with every episode's modality renamed MODALITY@TAG (tag "": unchanged)."""
+    if not tag:
+        return results
+    return {**results, "episodes": [{**e, "modality": f"{e['modality']}@{tag}"}
+                                    for e in results["episodes"]]}
 
 
 def merge_runs(parts: list[tuple[str, dict]]) -> dict:
@@ -180,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", metavar="NAME=DIR",
                     help="an `sebvs eval --out` directory per training seed (a NAME given "
-                         "again adds a directory to that seed's run)")
+                         "again adds a directory to that seed's run; NAME@TAG=DIR names its "
+                         "modalities MODALITY@TAG)")
     ap.add_argument("--a", required=True, help="modality A (e.g. rgb+event)")
     ap.add_argument("--b", required=True, help="modality B (e.g. rgb)")
     ap.add_argument("--metric", help="episode metric (default: the task's first)")
@@ -193,11 +204,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     parts: dict[str, list[tuple[str, dict]]] = {}
     for spec in args.runs:
-        name, sep, path = spec.partition("=")
-        if not sep or not name or not path:
-            ap.error(f"a run is NAME=DIR, got {spec!r}")
+        label, sep, path = spec.partition("=")
+        name, at, tag = label.partition("@")
+        if not sep or not name or not path or (at and not tag):
+            ap.error(f"a run is NAME=DIR or NAME@TAG=DIR, got {spec!r}")
         try:
-            parts.setdefault(name, []).append((path, read_results(Path(path))))
+            parts.setdefault(name, []).append((path, tagged(read_results(Path(path)), tag)))
         except ValueError as exc:
             print(f"seed_table: run {name!r}: {exc}", file=sys.stderr)
             return 2
