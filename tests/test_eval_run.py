@@ -196,3 +196,12 @@ def test_eval_command_refuses_a_seed_outside_its_split(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "outside the test split" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "eval").exists()
+
+
+def test_conditions_all_names_every_condition_of_the_task():
+    from sebvs.eval.cli import conditions_of
+    from sebvs.eval.run import ARM_CONDITIONS, NAV_CONDITIONS
+    assert conditions_of("all", "arm") == list(ARM_CONDITIONS)
+    assert conditions_of("all", "nav") == list(NAV_CONDITIONS)
+    assert "moving" in conditions_of("all", "arm") and "moving" not in NAV_CONDITIONS
+    assert conditions_of("fast, blur,", "nav") == ["fast", "blur"]

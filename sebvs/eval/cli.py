@@ -7,11 +7,20 @@ import sys
 from pathlib import Path
 
 
+def conditions_of(text: str, task: str) -> list[str]:
+    """--conditions as a list: comma-separated names, or "all" for every condition of the
+    task (checked later, with the other names, by EvalPlan.validate)."""
+    from .run import TASKS
+    if text.strip() == "all":
+        return list(TASKS[task].conditions)
+    return [c.strip() for c in text.split(",") if c.strip()]
+
+
 def _cmd_eval(args) -> int:
     from .run import TASKS, EvalPlan, evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     plan = EvalPlan(task=args.task, modalities=[m for m in args.modalities.split(",") if m],
-                    conditions=[c for c in args.conditions.split(",") if c],
+                    conditions=conditions_of(args.conditions, args.task),
                     scenarios=scenarios,
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
                     split=args.split, seed=args.seed, checkpoints=args.checkpoints,
@@ -70,8 +79,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--episodes", type=int, default=10,
                    help="episodes per modality, condition and scenario")
     e.add_argument("--conditions", default="nominal",
-                   help=f"comma-separated; nav: {', '.join(NAV_CONDITIONS)}; arm: "
-                        f"{', '.join(ARM_CONDITIONS)}")
+                   help=f"comma-separated, or all (default: nominal); nav: "
+                        f"{', '.join(NAV_CONDITIONS)}; arm: {', '.join(ARM_CONDITIONS)}")
     e.add_argument("--scenarios", default="",
                    help=f"comma-separated; nav: {', '.join(NAV_SCENARIOS)} (the scene "
                         f"variant); arm: {', '.join(ARM_SCENARIOS)} (default: all of the task's)")
