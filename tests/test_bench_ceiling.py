@@ -1,5 +1,7 @@
 """tools/bench_sim.py's compute ceiling: the frames it renders are the ones the rates ask
 for, every stage is timed, and the ceiling is the CPU per simulated second inverted."""
+import sys
+
 import pytest
 
 from tests.tools_loader import tool_module
@@ -20,12 +22,8 @@ def test_ceiling_renders_the_rates_frames_and_inverts_their_cpu(dvs_hz, luma_siz
     assert row["events_per_run"][0] > 0        # the robot turns: the emulator saw motion
 
 
-def test_bench_sim_help_names_the_ceiling(capsys):
+def test_bench_sim_help_names_the_ceiling(capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["bench_sim.py", "--help"])
     with tool_module("bench_sim") as bench, pytest.raises(SystemExit):
-        import sys
-        argv, sys.argv = sys.argv, ["bench_sim.py", "--help"]
-        try:
-            bench.main()
-        finally:
-            sys.argv = argv
+        bench.main()
     assert "--ceiling-only" in capsys.readouterr().out
