@@ -211,6 +211,10 @@ class ArmTracker(EpisodeTracker):
                    **arm_metrics(pred, expert),
                    "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
                    "modes": [t["mode"] for k, t, _ in rows if k in self.actions],
+                   # where every cube was at each scored tick, so a miss can be told
+                   # apart: aimed at another cube, between cubes, or near the right one
+                   "target": [t.get("target", -1) for k, t, _ in rows if k in self.actions],
+                   "cubes_mm": [_cubes_mm(t) for k, t, _ in rows if k in self.actions],
                    "reference_lead_s": self.params.lead_s,
                    "outcome": outcome, "grasp_success": grasp_success(outcome),
                    "end_decision_correct": end_decision_correct(outcome),
@@ -221,6 +225,12 @@ class ArmTracker(EpisodeTracker):
         return {"metrics": metrics,
                 "trace_error_mm": np.round(np.linalg.norm(pred[:, :3] - expert[:, :3], axis=1)
                                            * 1e3, 2).tolist()}
+
+
+def _cubes_mm(truth: dict) -> list:
+    """[[x mm, y mm, visible 0/1], ...] of the truth's cubes at one tick, index = cube."""
+    return [[round(c["pos"][0] * 1e3, 1), round(c["pos"][1] * 1e3, 1), int(c["visible"])]
+            for c in truth.get("cubes", ())]
 
 
 def _rounded(x: float | None) -> float | None:

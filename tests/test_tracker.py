@@ -86,7 +86,9 @@ def test_an_episode_waits_for_its_last_action_behind_the_next_episodes_first_fra
     tracker = ArmTracker("tracker", ArmTracker.Params(path=str(out), control_hz=10.0),
                          connected=frozenset({"rgb", "action", "episode"}), node=_Node())
     pose = [0.5, 0.0, 0.1, np.pi, 0.0, 0.0]
-    truth = {"expert_pose": pose, "mode": "grasp"}
+    cubes = [{"pos": [0.5, 0.0, 0.03], "visible": True},
+             {"pos": [0.5, 0.1234, 0.03], "visible": False}]
+    truth = {"expert_pose": pose, "mode": "grasp", "target": 0, "cubes": cubes}
 
     def frame(ep, tick):
         return _message("rgb", tick, {"control": True, "truth": truth, "episode": ep,
@@ -116,6 +118,8 @@ def test_an_episode_waits_for_its_last_action_behind_the_next_episodes_first_fra
     record = json.loads(out.read_text())
     assert record["episode"] == 0 and record["ticks"] == 4
     assert len(record["metrics"]["pred"]) == 4
+    assert record["metrics"]["target"] == [0] * 4
+    assert record["metrics"]["cubes_mm"][3] == [[500.0, 0.0, 1], [500.0, 123.4, 0]]
 
 
 def test_without_an_action_input_the_next_frame_closes_an_episode():
