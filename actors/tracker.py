@@ -203,6 +203,7 @@ class ArmTracker(EpisodeTracker):
                                   [t_ep for _, _, t_ep in rows], self.params.lead_s)
         pairs = [(self.actions[k], ref) for (k, _, _), ref in zip(rows, reference)
                  if k in self.actions]
+        scored = [t for k, t, _ in rows if k in self.actions]   # truth at the ticks in pairs
         pred = np.array([p for p, _ in pairs]).reshape(-1, 6)
         expert = np.array([e for _, e in pairs], dtype=np.float64).reshape(-1, 6)
         outcome = (info.get("outcome") or {}).get("outcome")
@@ -210,11 +211,11 @@ class ArmTracker(EpisodeTracker):
         metrics = {"scenario": "single" if objects == 1 else "multi",
                    **arm_metrics(pred, expert),
                    "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
-                   "modes": [t["mode"] for k, t, _ in rows if k in self.actions],
+                   "modes": [t["mode"] for t in scored],
                    # where every cube was at each scored tick, so a miss can be told
                    # apart: aimed at another cube, between cubes, or near the right one
-                   "target": [t.get("target", -1) for k, t, _ in rows if k in self.actions],
-                   "cubes_mm": [_cubes_mm(t) for k, t, _ in rows if k in self.actions],
+                   "target": [t.get("target", -1) for t in scored],
+                   "cubes_mm": [_cubes_mm(t) for t in scored],
                    "reference_lead_s": self.params.lead_s,
                    "outcome": outcome, "grasp_success": grasp_success(outcome),
                    "end_decision_correct": end_decision_correct(outcome),
