@@ -8,12 +8,18 @@ from pathlib import Path
 
 
 def conditions_of(text: str, task: str) -> list[str]:
-    """--conditions as a list: comma-separated names, or "all" for every condition of the
-    task (checked later, with the other names, by EvalPlan.validate)."""
+    """--conditions as a list: comma-separated names and groups, "all" for the task's six
+    conditions of the 8-bit benchmark, "physical" for its physical ones (light in physical
+    units, for a camera.sensor="physical"); names are checked later by EvalPlan.validate,
+    a name given twice runs once."""
     from .run import TASKS
-    if text.strip() == "all":
-        return list(TASKS[task].conditions)
-    return [c.strip() for c in text.split(",") if c.strip()]
+    groups = {"all": TASKS[task].conditions, "physical": TASKS[task].physical}
+    out: list[str] = []
+    for name in (c.strip() for c in text.split(",")):
+        for c in groups.get(name, [name] if name else []):
+            if c not in out:
+                out.append(c)
+    return out
 
 
 def _cmd_eval(args) -> int:
@@ -59,7 +65,8 @@ def _check_checkpoints(plan) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     from sebvs.data.cli import add_fanout_arguments
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
-    from .run import ARM_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS, NAV_SCENARIOS
+    from .run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS,
+                      NAV_PHYSICAL_CONDITIONS, NAV_SCENARIOS)
     e = sub.add_parser(
         "eval", help="closed-loop evaluation of policies against the expert",
         description="Run every modality (the expert as the reference row and a no-action "
@@ -79,8 +86,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--episodes", type=int, default=10,
                    help="episodes per modality, condition and scenario")
     e.add_argument("--conditions", default="nominal",
-                   help=f"comma-separated, or all (default: nominal); nav: "
-                        f"{', '.join(NAV_CONDITIONS)}; arm: {', '.join(ARM_CONDITIONS)}")
+                   help=f"comma-separated names or groups (default: nominal): all = the 8-bit "
+                        f"benchmark's (nav: {', '.join(NAV_CONDITIONS)}; arm: "
+                        f"{', '.join(ARM_CONDITIONS)}); physical = light in physical units, "
+                        f"for camera.sensor=\"physical\" (nav: "
+                        f"{', '.join(NAV_PHYSICAL_CONDITIONS)}; arm: "
+                        f"{', '.join(ARM_PHYSICAL_CONDITIONS)}; docs/sim.md)")
     e.add_argument("--scenarios", default="",
                    help=f"comma-separated; nav: {', '.join(NAV_SCENARIOS)} (the scene "
                         f"variant); arm: {', '.join(ARM_SCENARIOS)} (default: all of the task's)")

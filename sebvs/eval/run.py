@@ -67,6 +67,31 @@ ARM_CONDITIONS: dict[str, list[str]] = {
     "flicker": ['sim.config.lighting="flicker"'],
     "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8"],
 }
+# The physical conditions: light, flicker and motion as physical quantities (the scenes'
+# photometry(), sebvs/sensors/light.py; docs/sim.md, "Conditions in physical terms"), for
+# cameras that model a sensor on physical light (camera.sensor="physical"). Not part of
+# "all" (the six above are the 8-bit benchmark); `--conditions physical` runs them.
+PHYSICAL = 'camera.sensor="physical"'
+# mains flicker (twice the supply frequency) needs the renders at >= 1 kHz, else it aliases
+MAINS_RATES = ["sim.render_hz=1000.0", "camera.dvs_hz=1000.0"]
+NAV_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
+    # a backlit scene: windows (indoor) or the sky (outdoor) at 1e4 cd/m^2, target in shade
+    "hdr": ['sim.config.lighting="hdr"', PHYSICAL],
+    "dusk": ['sim.config.lighting="dusk"', PHYSICAL],                  # 3 lux
+    "dusk_fast": ['sim.config.lighting="dusk"', 'sim.config.target_speed="fast"', PHYSICAL],
+    "flicker_100": ['sim.config.lighting="flicker"', "sim.config.flicker_hz=100.0",
+                    *MAINS_RATES, PHYSICAL],                             # 50 Hz mains
+    "flicker_120": ['sim.config.lighting="flicker"', "sim.config.flicker_hz=120.0",
+                    *MAINS_RATES, PHYSICAL],                             # 60 Hz mains
+    "fast_hdr": ['sim.config.lighting="hdr"', 'sim.config.target_speed="fast"', PHYSICAL],
+}
+ARM_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
+    "hdr": ['sim.config.lighting="hdr"', PHYSICAL],                    # lamp beside the belt
+    "dusk_moving": ['sim.config.lighting="dusk"', 'sim.config.conveyor="moving"',
+                    "sim.config.belt_speed=0.08", PHYSICAL],
+    "fast_hdr": ['sim.config.lighting="hdr"', 'sim.config.conveyor="moving"',
+                 "sim.config.belt_speed=0.25", PHYSICAL],
+}
 # scenario -> overrides: the nav scene's two variants (the shipped checkpoints were trained
 # indoors only, so outdoor asks whether a policy transfers)
 NAV_SCENARIOS: dict[str, list[str]] = {"indoor": ['sim.config.variant="indoor"'],
@@ -78,9 +103,9 @@ ARM_SCENARIOS: dict[str, list[str]] = {"single": ["sim.config.objects=1"],
 
 @dataclass(frozen=True)
 class TaskEval:
-    """What `sebvs eval` needs to know of a task: its conditions and scenarios, the two
-    topologies, and the per-tick error trace its tracker records (episode key, the plot's
-    file and label)."""
+    """What `sebvs eval` needs to know of a task: its conditions (the 8-bit benchmark's,
+    "all") and physical conditions ("physical"), its scenarios, the two topologies, and the
+    per-tick error trace its tracker records (episode key, the plot's file and label)."""
     conditions: dict[str, list[str]]
     scenarios: dict[str, list[str]]
     policy_topology: Path
@@ -88,6 +113,12 @@ class TaskEval:
     trace_key: str
     trace_png: str
     trace_label: str
+    physical: dict[str, list[str]] = field(default_factory=dict)
+
+    @property
+    def known_conditions(self) -> dict[str, list[str]]:
+        """Every condition a run may name: the benchmark's, then the physical ones."""
+        return {**self.conditions, **self.physical}
 
     @property
     def output_files(self) -> str:
@@ -97,10 +128,10 @@ class TaskEval:
 TASKS = {
     "nav": TaskEval(NAV_CONDITIONS, NAV_SCENARIOS, TOPOLOGIES / "nav_policy.toml",
                     TOPOLOGIES / "nav_expert.toml", "trace_error_px", "centroid_error.png",
-                    "centroid error (px); gaps: target out of view"),
+                    "centroid error (px); gaps: target out of view", NAV_PHYSICAL_CONDITIONS),
     "arm": TaskEval(ARM_CONDITIONS, ARM_SCENARIOS, TOPOLOGIES / "arm_policy.toml",
                     TOPOLOGIES / "arm_expert.toml", "trace_error_mm", "pose_error.png",
-                    "position error against the task's pose (mm)"),
+                    "position error against the task's pose (mm)", ARM_PHYSICAL_CONDITIONS),
 }
 # the learned rows: the paper's three, and the rgb+diff control when asked for by name
 MODALITIES = PAPER_MODALITIES + CONTROL_MODALITIES
@@ -175,7 +206,7 @@ class EvalPlan:
         unknown = [m for m in self.modalities if m not in MODALITIES]
         if unknown:
             raise ValueError(f"unknown modality {unknown[0]!r} (one of {', '.join(MODALITIES)})")
-        for kind, given, known in (("condition", self.conditions, spec.conditions),
+        for kind, given, known in (("condition", self.conditions, spec.known_conditions),
                                    ("scenario", self.scenarios, spec.scenarios)):
             unknown = [c for c in given if c not in known]
             if unknown:
@@ -267,14 +298,17 @@ class EvalPlan:
     def overrides(self, run: Run) -> tuple[Path, list[str]]:
         spec = TASKS[self.task]
         path = self.episode_file(run)
-        common = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
-                  f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
-                  f'tracker.label={{condition="{run.condition}", modality="{run.modality}", '
-                  f'topology_seed={self.seed}}}',
-                  *spec.conditions[run.condition], *spec.scenarios[run.scenario],
-                  *self.video_overrides(run)]
+        run_sets = [f"topology.seed={self.seed}", f'topology.clock="{self.clock}"',
+                    f"sim.episodes={self.episodes}", f'tracker.path="{path}"',
+                    f'tracker.label={{condition="{run.condition}", modality="{run.modality}", '
+                    f'topology_seed={self.seed}}}']
+        scene_sets = [*spec.known_conditions[run.condition], *spec.scenarios[run.scenario],
+                      *self.video_overrides(run)]
+        common = run_sets + scene_sets
         if run.modality == "expert":
-            return self.expert_topology, common + self.shared_sim() + self.extra
+            # the policies' rates first: a condition that sets its own (the mains flicker's
+            # render_hz) sets them for the expert too
+            return self.expert_topology, run_sets + self.shared_sim() + scene_sets + self.extra
         if run.modality == BASELINE:
             # the policy topology with the baseline answering each tick instead: the policy,
             # emulator and accumulator then feed nobody and are pruned
@@ -289,6 +323,9 @@ class EvalPlan:
             sets.append('policy.inputs={rgb="camera/rgb"}')   # event chain is pruned
         else:
             sets += self.event_frame_overrides(run.modality)
+            if run.condition in spec.physical:
+                # the event sensor's own physics on linear light: slow and noisy at dusk
+                sets.append('emulator.preset="physical"')
         return self.policy_topology, common + sets + self.extra
 
     def event_frames(self, modality: str) -> dict | None:

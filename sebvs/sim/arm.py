@@ -32,7 +32,7 @@ from . import arm_model
 from .arm_model import (BELT_HALF_W, BELT_TOP, BELT_X, BELT_Y, CONVEYOR_SOLIDS, CUBE_MASS,
                         JOINTS, SKIN_PERIOD, STROKE, TCP)
 from .ik import dls_ik, rpy_to_mat
-from .scene import Scene
+from .scene import LIGHT_DEFAULTS, Scene
 from .stability import Limits
 
 # The conveyor's start-up acceleration: below g * (side / height), no cube tips.
@@ -51,7 +51,9 @@ GRASP_YAW_OFFSET = math.pi / 2
 PALETTE = ((0.9, 0.15, 0.1), (0.1, 0.7, 0.2), (0.15, 0.3, 0.9), (0.95, 0.8, 0.1),
            (0.8, 0.2, 0.8), (0.1, 0.75, 0.8), (0.95, 0.5, 0.1))
 CONVEYOR = ("static", "moving")
-LIGHTING = ("nominal", "low", "flicker")
+LIGHTING = ("nominal", "low", "flicker", "dusk", "hdr")
+NOMINAL_LUX = 500.0                     # a workshop
+HDR_LUX = 30.0                          # the belt in the shade of the HDR condition
 
 
 class ArmScene(Scene):
@@ -64,8 +66,14 @@ class ArmScene(Scene):
     min_gap       float m between cube centres beyond their sizes (0.03)
     spawn_y       [min, max] world y of cube centres at reset ([-0.3, 0.5]; moving: the
                   episode carries them on)
-    lighting      "nominal" | "low" | "flicker" (flicker_hz, as the nav scene)
+    lighting      "nominal" | "low" | "flicker" (flicker_hz, as the nav scene) | "dusk" |
+                  "hdr" (see Light below)
     flicker_hz    float (10.0)
+    flicker_depth float in (0, 0.5] (0.35), as the nav scene
+    illuminance_lux  float or None: the nominal light (None: 500 lux, a workshop)
+    dusk_lux      float (3.0): the light under "dusk"
+    hdr_lux       float or None: the belt's light under "hdr" (None: 30 lux, in the shade)
+    lamp_cd_m2    float in (0, 1e9] (1e4): the HDR lamp panel's luminance, cd/m^2
     rgb_blur      int sub-frames averaged per RGB frame (0: none)
     width, height int wrist image, px (160 x 160)
     fovy          float deg (75)
@@ -76,6 +84,14 @@ class ArmScene(Scene):
     contact_timeconst  float s (0 = MuJoCo's default): contact solref time constant, with
                   refsafe off (the stiff case), as the nav scene
     plus integrator, timestep, shadows (Scene).
+
+    Light (photometry(), sebvs/sensors/light.py): "nominal" and "flicker" at
+    illuminance_lux, "low" those lights dimmed as the render dims them (x 0.16), "dusk" at
+    dusk_lux; "hdr" is a backlit cell: the belt and cubes in the shade at hdr_lux and a
+    lamp beside the belt, a self-luminous panel (material "hdr_lamp", lamp_cd_m2: a lamp,
+    or a sunlit window's reflection) between the pedestal and the belt's near rail that
+    fills ~20 % of the HOME wrist image (its top), below the cubes' level, never over one
+    (arm_model.LAMP_X, LAMP_Y). No sky.
     """
 
     task = "arm"
@@ -86,7 +102,8 @@ class ArmScene(Scene):
                 "cube_half": [0.0225, 0.03], "min_gap": 0.03, "spawn_y": [-0.3, 0.5],
                 "lighting": "nominal", "flicker_hz": 10.0, "rgb_blur": 0, "width": 160,
                 "height": 160, "fovy": 75.0, "servo_gain": 1.0, "grip_force": 40.0,
-                "grasp_at_end": True, "drop_height": 0.002, "contact_timeconst": 0.0}
+                "grasp_at_end": True, "drop_height": 0.002, "contact_timeconst": 0.0,
+                **LIGHT_DEFAULTS}
 
     def validate(self) -> None:
         c = self.config
@@ -120,6 +137,13 @@ class ArmScene(Scene):
         if not isinstance(c["grasp_at_end"], bool):
             raise ValueError(f"arm scene: grasp_at_end must be true or false, "
                              f"got {c['grasp_at_end']!r}")
+        self.validate_light()
+
+    def default_lux(self) -> float:
+        return NOMINAL_LUX
+
+    def default_hdr_lux(self) -> float:
+        return HDR_LUX
 
     def mjcf(self) -> str:
         return arm_model.mjcf(self.mjcf_head("sebvs_arm"), self.config,

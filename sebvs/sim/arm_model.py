@@ -16,6 +16,12 @@ tool, its y axis along the closing direction. The wrist camera `wrist` is on the
 housing, beside the tool axis, looking along it: at HOME (tool pointing down, yaw 0) image
 right is world +y and image up is world -x (toward the robot).
 
+HDR lamp. Under lighting "hdr" (only) a self-luminous panel (material "hdr_lamp", white in
+the 8-bit render, luminance lamp_cd_m2 in the scene's photometry) lies beside the belt's
+near side, between the pedestal and the belt (LAMP_X, LAMP_Y): a lamp panel or a sunlit
+window's reflection, in the wrist camera's view at HOME (the top ~20 % of the image) and
+never in front of a cube.
+
 Conveyor. A static box geom whose surface moves at `belt_speed` m/s along +y
 (MuJoCo's geom surfacevel: friction carries whatever lies on it). `conveyor` "static"
 stops it, "moving" runs it during the episode, starting from rest at BELT_ACCEL (a belt
@@ -30,6 +36,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from .scene import HDR_LAMP
 
 # UR5 Denavit-Hartenberg parameters (Universal Robots' published values): per joint
 # (d m, a m, alpha rad); frame i = frame i-1 * Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i).
@@ -57,6 +65,16 @@ SKIN_PERIOD = 0.1       # m, the belt texture's period along y (the skin's wrap-
                         # a uniform texture repeats texrepeat times per 2 m: measured)
 
 CUBE_MASS = 0.1         # kg, every cube (a 5 cm wooden block)
+
+# The HDR condition's emitter (lighting "hdr" only): a self-luminous panel lying beside the
+# belt's near side, between the robot's pedestal (radius 0.08 m) and the near rail (x 0.27),
+# facing up, 1 cm below the belt top: a lamp panel, or a sunlit window's reflection in a
+# glossy bench. In the HOME wrist image it is the top ~20 % (image up is world -x), and it
+# stays in view as the wrist descends to a pre-grasp pose over the belt; it lies below and
+# beside the belt, so it never covers a cube. (x0, x1), (y0, y1): world extents, m.
+LAMP_X = (0.09, 0.265)
+LAMP_Y = (-0.6, 0.8)
+LAMP_Z = BELT_TOP - 0.01
 
 
 def dh_forward(q) -> np.ndarray:
@@ -137,9 +155,21 @@ def arm_xml(grip_force: float, fovy: float) -> str:
     return "".join(bodies) + gripper + "".join(reversed(close))
 
 
+def lamp_xml(c: dict) -> tuple[str, str]:
+    """(asset, geom) of the HDR lamp panel: both empty unless c["lighting"] is "hdr"."""
+    if c.get("lighting") != "hdr":
+        return "", ""
+    (x0, x1), (y0, y1) = LAMP_X, LAMP_Y
+    return (f'\n    <material name="{HDR_LAMP}" rgba="0.95 0.97 1 1" emission="1" specular="0"/>',
+            f'\n    <geom name="hdr_lamp" type="box" pos="{(x0 + x1) / 2:g} {(y0 + y1) / 2:g} '
+            f'{LAMP_Z - 0.002:g}" size="{(x1 - x0) / 2:g} {(y1 - y0) / 2:g} 0.002" '
+            f'material="{HDR_LAMP}" contype="0" conaffinity="0"/>')
+
+
 def mjcf(head: str, c: dict, key: float, shadow: str) -> str:
     """The whole scene for config ``c`` (ArmScene's keys) under ``head`` (the scene's
     compiler, options and visuals), the key light at ``key`` with its shadow flag."""
+    lamp_asset, lamp_geom = lamp_xml(c)
     gain = float(c["servo_gain"])
     arm = arm_xml(float(c["grip_force"]), float(c["fovy"]))
     kp = [gain * k for k in (2000, 2000, 1500, 300, 300, 100)]
@@ -171,7 +201,7 @@ def mjcf(head: str, c: dict, key: float, shadow: str) -> str:
     <material name="joint" rgba="0.3 0.32 0.36 1"/>   <!-- unsaturated: the expert segments saturated cubes of any hue -->
     <material name="gripper" rgba="0.2 0.2 0.22 1"/>
     <material name="pad" rgba="0.1 0.1 0.1 1"/>
-    <material name="frame" rgba="0.55 0.57 0.6 1"/>
+    <material name="frame" rgba="0.55 0.57 0.6 1"/>{lamp_asset}
   </asset>
   <worldbody>
     <geom name="floor" type="plane" pos="0 0 -0.75" size="3 3 0.1" material="floor"/>
@@ -193,7 +223,7 @@ def mjcf(head: str, c: dict, key: float, shadow: str) -> str:
     <geom name="rail_l" type="box" size="0.01 {belt_len} 0.015"
           pos="{BELT_X - BELT_HALF_W - 0.01} {belt_mid} {BELT_TOP + 0.005}" material="frame"/>
     <geom name="rail_r" type="box" size="0.01 {belt_len} 0.015"
-          pos="{BELT_X + BELT_HALF_W + 0.01} {belt_mid} {BELT_TOP + 0.005}" material="frame"/>
+          pos="{BELT_X + BELT_HALF_W + 0.01} {belt_mid} {BELT_TOP + 0.005}" material="frame"/>{lamp_geom}
     <body name="base" pos="0 0 0">
       <geom type="cylinder" size="0.075 0.04" pos="0 0 0.04" material="joint" mass="4"/>
       {arm}

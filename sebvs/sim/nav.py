@@ -28,12 +28,19 @@ import math
 import mujoco
 import numpy as np
 
-from .scene import Scene
+from .scene import HDR_LAMP, LIGHT_DEFAULTS, Scene
 from .stability import Limits
 from .trajectories import SPEEDS, TrajectoryConfig, WaypointTrajectory
 
 VARIANTS = ("indoor", "outdoor")
-LIGHTING = ("nominal", "low", "flicker")
+LIGHTING = ("nominal", "low", "flicker", "dusk", "hdr")
+# Nominal illuminance (lux) per variant (public orders of magnitude: an office, an
+# overcast day) and the shade's under the "hdr" lighting (sebvs/sensors/light.py).
+NOMINAL_LUX = {"indoor": 400.0, "outdoor": 1e4}
+HDR_LUX = {"indoor": 30.0, "outdoor": 50.0}
+# The indoor HDR windows: a band on all four walls from sill to head height (m), so one
+# is in view whichever way the robot faces.
+WINDOW_Z = (0.3, 1.9)
 
 MASS = 10.0            # chassis, kg
 ROBOT_MASS = MASS + 4 * 0.5 + 0.1   # chassis, four wheels, mast (as in the MJCF), kg
@@ -57,7 +64,15 @@ class NavScene(Scene):
                   colour detector looks for red, so keep the hue red
     target_speed  "slow" | "nominal" | "fast"  (0.25 / 0.5 / 1.0 m/s nominal)
     lighting      "nominal" | "low" | "flicker" (light intensity modulated at flicker_hz)
+                  | "dusk" | "hdr" (see Light below)
     flicker_hz    float, 10.0
+    flicker_depth float in (0, 0.5] (0.35): the lights at 1 - d + d sin(2 pi f t + phase)
+    illuminance_lux  float or None: the nominal light (None: indoor 400 lux, an office;
+                  outdoor 1e4, an overcast day)
+    dusk_lux      float (3.0): the light under "dusk"
+    hdr_lux       float or None: the shade's light under "hdr" (None: indoor 30, outdoor 50)
+    lamp_cd_m2    float in (0, 1e9] (1e4): the HDR emitter's luminance, cd/m^2 (a window
+                  onto a bright overcast sky)
     rgb_blur      int sub-frames averaged per RGB frame (0 or 1: no blur); the camera uses it
     width, height int image size, px (160 x 160)
     fovy          float, degrees (70)
@@ -68,6 +83,19 @@ class NavScene(Scene):
                   set, MuJoCo's refsafe clamp (>= 2 timesteps) is disabled too, so stiff
                   contacts (the issue's stiff case) are really that stiff
     plus integrator, timestep, shadows (Scene).
+
+    Light (photometry(), sebvs/sensors/light.py). The render's lights are relative; the
+    config says what they are in physical units: "nominal" and "flicker" at
+    illuminance_lux, "low" the same lights dimmed as the render dims them (x 0.16),
+    "dusk" at dusk_lux, "hdr" a backlit scene. The outdoor sky is always in view: a
+    uniform overcast sky of luminance L gives E = pi L, so a sky texel of 1 is
+    illuminance / pi, as bright as a white lit surface; under "hdr" the sky is the bright
+    emitter (lamp_cd_m2) and the ground and target are in the shade (hdr_lux). Indoors
+    "hdr" adds windows: a band of self-luminous panels (material "hdr_lamp", luminance
+    lamp_cd_m2, white in the 8-bit render) on all four walls from a 0.3 m sill to 1.9 m,
+    glazing onto an overcast sky; from the robot's start pose they fill ~21 % of the front
+    image, behind and above the target (tests/test_sim_light.py), while the room is at
+    hdr_lux.
     """
 
     task = "nav"
@@ -77,7 +105,7 @@ class NavScene(Scene):
                 "target_rgb": (0.9, 0.15, 0.1), "target_speed": "nominal",
                 "lighting": "nominal", "flicker_hz": 10.0, "rgb_blur": 0, "width": 160,
                 "height": 160, "fovy": 70.0, "v_max": 1.5, "w_max": 2.0, "servo_gain": 1.0,
-                "arena": 6.0, "contact_timeconst": 0.0}
+                "arena": 6.0, "contact_timeconst": 0.0, **LIGHT_DEFAULTS}
 
     def validate(self) -> None:
         c = self.config
@@ -108,6 +136,42 @@ class NavScene(Scene):
                 for x in rgb)):
             raise ValueError(f"nav scene: target_rgb must be three numbers in [0, 1], "
                              f"got {rgb!r}")
+        self.validate_light()
+
+    # ------------------------------------------------------------------ light
+    def default_lux(self) -> float:
+        return NOMINAL_LUX[self.config["variant"]]
+
+    def default_hdr_lux(self) -> float:
+        return HDR_LUX[self.config["variant"]]
+
+    def has_lamp(self) -> bool:
+        """Indoors the HDR emitter is the windows; outdoors it is the sky."""
+        return self.config["variant"] == "indoor"
+
+    def sky_cd_m2(self, illuminance_lux: float) -> float | None:
+        if self.config["variant"] != "outdoor":
+            return None
+        if self.config["lighting"] == "hdr":
+            return float(self.config["lamp_cd_m2"])
+        return illuminance_lux / math.pi
+
+    def windows_xml(self) -> str:
+        """The HDR condition's windows (indoor, lighting "hdr"; else nothing): one panel 1 cm
+        in front of each wall's inner face, 30 cm short of each corner, no collisions."""
+        if self.config["lighting"] != "hdr":
+            return ""
+        a = float(self.config["arena"])
+        z0, z1 = WINDOW_Z
+        zc, hz = (z0 + z1) / 2, (z1 - z0) / 2
+        d = a - 0.05 - 0.011            # wall inner face at a - 0.05; panels 1 cm thick
+        half = a - 0.3
+        panels = (("n", 0, d, half, 0.005), ("s", 0, -d, half, 0.005),
+                  ("e", d, 0, 0.005, half), ("w", -d, 0, 0.005, half))
+        return "".join(
+            f'\n    <geom name="window_{n}" type="box" pos="{x:g} {y:g} {zc:g}" '
+            f'size="{sx:g} {sy:g} {hz:g}" material="{HDR_LAMP}" contype="0" conaffinity="0"/>'
+            for n, x, y, sx, sy in panels)
 
     # ------------------------------------------------------------------ model
     def mjcf(self) -> str:
@@ -137,7 +201,7 @@ class NavScene(Scene):
     <light name="key" pos="0 0 {wall_h - 0.1}" dir="0 0 -1" directional="false" diffuse="{key} {key} {key}"
            specular="0.1 0.1 0.1" attenuation="1 0 0" castshadow="{shadow}"/>
     <light name="fill" pos="{a / 2} {-a / 2} 3" dir="-0.3 0.3 -1" diffuse="{key / 2} {key / 2} {key / 2}"
-           specular="0 0 0" castshadow="false"/>"""
+           specular="0 0 0" castshadow="false"/>{self.windows_xml()}"""
             # plain: one grey, the checker's mean, so only the marks and the target move
             light, dark = CHECKER
             mean = tuple((a + b) / 2 for a, b in zip(light, dark))
@@ -151,6 +215,9 @@ class NavScene(Scene):
     <texture name="wall" type="2d" builtin="gradient" rgb1="0.75 0.72 0.65" rgb2="0.45 0.45 0.5"
              width="64" height="64"/>
     <material name="wall" texture="wall" texrepeat="4 1"/>"""
+            if c["lighting"] == "hdr":
+                assets += f"""
+    <material name="{HDR_LAMP}" rgba="0.95 0.97 1 1" emission="1" specular="0"/>"""
         else:
             world = f"""
     <geom name="floor" type="plane" size="{4 * a} {4 * a} 4" material="ground"/>

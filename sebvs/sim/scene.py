@@ -18,10 +18,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 import math
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import mujoco
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..sensors.light import Photometry
 
 # Integrator names accepted in config -> MuJoCo enum (mujoco.mjtIntegrator).
 INTEGRATORS: dict[str, int] = {
@@ -38,6 +41,18 @@ COMMON_KEYS = frozenset({"integrator", "timestep", "shadows"})
 
 # The render-speed settings every scene's MJCF carries: no MSAA, no shadow map.
 FAST_VISUAL = '<visual><quality offsamples="0" shadowsize="0"/></visual>'
+
+# Relative light levels (key light diffuse, headlight ambient) of the ideal 8-bit render:
+# nominal (and flicker) lights, and the dim ones of the "low", "dusk" and "hdr" scenes.
+NOMINAL_LEVELS = (0.7, 0.3)
+DIM_LEVELS = (0.12, 0.04)
+DIM_LIGHTING = ("low", "dusk", "hdr")
+# The material of the HDR condition's self-luminous surface (a window, a lamp panel).
+HDR_LAMP = "hdr_lamp"
+# The light keys every scene with a `lighting` config key accepts, and their defaults
+# (None: the scene's own, Scene.default_lux / default_hdr_lux).
+LIGHT_DEFAULTS = {"illuminance_lux": None, "dusk_lux": 3.0, "hdr_lux": None,
+                  "lamp_cd_m2": 1e4, "flicker_depth": 0.35}
 
 
 class Scene(ABC):
@@ -116,9 +131,10 @@ class Scene(ABC):
         return "true" if self.config["shadows"] else "false"
 
     def light_levels(self) -> tuple[float, float]:
-        """(key light diffuse, headlight ambient) for the config's lighting: "low" is a dim
-        scene (the event camera's case), not a black one."""
-        return (0.12, 0.04) if self.config.get("lighting") == "low" else (0.7, 0.3)
+        """(key light diffuse, headlight ambient) for the config's lighting: "low", "dusk"
+        and "hdr" are dim scenes (the event camera's case), not black ones; their physical
+        light is photometry()'s."""
+        return DIM_LEVELS if self.config.get("lighting") in DIM_LIGHTING else NOMINAL_LEVELS
 
     def mjcf_head(self, name: str) -> str:
         """The opening every scene's MJCF shares, up to <asset>: compiler, option, the fast
@@ -183,20 +199,113 @@ class Scene(ABC):
         return {}
 
     # -- lighting conditions ----------------------------------------------------------------
-    # Scenes with config keys `lighting` ("nominal" | "low" | "flicker") and `flicker_hz`
-    # share the flicker: every light's diffuse scaled by 30-100 % at flicker_hz (mains-like),
-    # sent to the camera as state `light` since it changes the model, not qpos.
+    # Scenes with config keys `lighting` ("nominal" | "low" | "flicker" | "dusk" | "hdr"),
+    # `flicker_hz` and LIGHT_DEFAULTS' keys share the flicker and the photometry. The
+    # flicker scales every light's diffuse by 1 - d + d sin(2 pi f t + phase) (d =
+    # flicker_depth, f = flicker_hz), sent to the camera as state `light` since it changes
+    # the model, not qpos.
+    def validate_light(self) -> None:
+        """Check LIGHT_DEFAULTS' keys (called by the scenes' validate()); ValueError
+        naming the key."""
+        c = self.config
+
+        def number(key: str, lo: float, hi: float, lo_open: bool = True,
+                   none: bool = False) -> None:
+            v = c[key]
+            if v is None and none:
+                return
+            ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) \
+                and (lo < v if lo_open else lo <= v) and v <= hi
+            if not ok:
+                what = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
+                raise ValueError(f"{self.task} scene: {key} must be a number in {what}"
+                                 f"{' or None' if none else ''}, got {v!r}")
+
+        number("illuminance_lux", 0.0, 1e6, none=True)
+        number("dusk_lux", 0.0, 1e6)
+        number("hdr_lux", 0.0, 1e6, none=True)
+        number("lamp_cd_m2", 0.0, 1e9)
+        # the light never goes negative: its minimum is 1 - 2d
+        number("flicker_depth", 0.0, 0.5)
+
+    def default_lux(self) -> float:
+        """The nominal illuminance (lux) when the config's illuminance_lux is None."""
+        return 400.0
+
+    def default_hdr_lux(self) -> float:
+        """The shade's illuminance (lux) in the "hdr" lighting when hdr_lux is None."""
+        return 30.0
+
+    def has_lamp(self) -> bool:
+        """Whether the "hdr" lighting adds a self-luminous HDR_LAMP surface to the model."""
+        return True
+
+    def sky_cd_m2(self, illuminance_lux: float) -> float | None:
+        """Luminance (cd/m^2) of a skybox texel of value 1 under the scene's illuminance,
+        or None where no sky is in view."""
+        return None
+
+    def photometry(self) -> "Photometry":
+        """The physical scale of this config's light (sebvs.sensors.light.Photometry).
+
+        illuminance: illuminance_lux (or the scene's default) for "nominal" and
+        "flicker"; for "low" the same light scaled as the dim render levels scale it
+        (sum(DIM_LEVELS) / sum(NOMINAL_LEVELS) = 0.16: a dim indoor scene); dusk_lux for
+        "dusk"; hdr_lux (or the scene's default) for "hdr", the shade the target is in.
+        render_level is the key + ambient of the levels in force. In "hdr" the emitter
+        (material HDR_LAMP, where the scene has one) has luminance lamp_cd_m2; a scene
+        with a sky says what a sky texel of 1 is. flicker: (flicker_hz, flicker_depth)
+        under "flicker", else None; the illuminance is then the lights' at scale 1 (as
+        compiled). The render already carries the flicker (state `light` scales the
+        lights' diffuse, not the headlight's ambient): a white surface renders at
+        key * scale + ambient.
+        """
+        from ..sensors.light import Photometry
+        c = self.config
+        lighting = c.get("lighting", "nominal")
+        nominal = float(c["illuminance_lux"]) if c.get("illuminance_lux") is not None \
+            else self.default_lux()
+        levels = self.light_levels()
+        if lighting == "low":
+            lux = nominal * sum(DIM_LEVELS) / sum(NOMINAL_LEVELS)
+        elif lighting == "dusk":
+            lux = float(c["dusk_lux"])
+        elif lighting == "hdr":
+            lux = float(c["hdr_lux"]) if c.get("hdr_lux") is not None \
+                else self.default_hdr_lux()
+        else:
+            lux = nominal
+        emissive = {HDR_LAMP: float(c["lamp_cd_m2"])} \
+            if lighting == "hdr" and self.has_lamp() else {}
+        flicker = (float(c["flicker_hz"]), float(c["flicker_depth"])) \
+            if lighting == "flicker" else None
+        return Photometry(illuminance_lux=lux, render_level=sum(levels), emissive=emissive,
+                          sky_cd_m2=self.sky_cd_m2(lux), flicker=flicker)
+
     def reset_lights(self, model: mujoco.MjModel, rng: np.random.Generator) -> None:
         """Episode start: full intensity, the flicker's phase drawn from `rng`."""
         self.flicker_phase = float(rng.uniform(0, 2 * math.pi))
         self.set_light_scale(model, 1.0)
 
+    def flicker_scale(self, t: float) -> float:
+        """The lights' scale at sim time t (s) under "flicker": 1 - d + d sin(2 pi f t +
+        phase) (d = flicker_depth, default 0.35: 0.65 + 0.35 sin, 30-100 %)."""
+        d = float(self.config.get("flicker_depth", 0.35))
+        return (1 - d) + d * math.sin(
+            2 * math.pi * self.config["flicker_hz"] * t + self.flicker_phase)
+
     def flicker(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """From scripted(): modulate the lights when the config's lighting is "flicker"."""
+        """From scripted(): modulate the lights when the config's lighting is "flicker".
+
+        The modulation is sampled twice: by the sim's physics step (set every step, 1 kHz
+        by default) and by the camera, which sees the lights as they were at each render
+        (the sim's render_hz). Mains flicker (100 / 120 Hz: twice the supply frequency)
+        needs render rates >= 1 kHz (sim.render_hz, camera.dvs_hz); at 100 Hz a 100 Hz
+        flicker aliases to a constant level, 120 Hz to a slow 20 Hz beat.
+        """
         if self.config.get("lighting") != "flicker":
             return
-        self.set_light_scale(model, 0.65 + 0.35 * math.sin(
-            2 * math.pi * self.config["flicker_hz"] * data.time + self.flicker_phase))
+        self.set_light_scale(model, self.flicker_scale(data.time))
 
     def set_light_scale(self, model: mujoco.MjModel, scale: float) -> None:
         """Every light's diffuse at `scale` x the compiled one (taken at the first call)."""
