@@ -12,6 +12,18 @@ Outputs, each rendered only when some actor consumes it (self.consumed):
          episode, control (True on the sample of a control tick), t_ep. tick = the sim's.
   depth  {"depth": (H, W) float32, m} and seg {"seg": (H, W, 2) int32 [id, mjtObj type]}
          at the RGB times.
+  ideal  {"rgb": (H, W, 3) uint8}: the ideal 8-bit render at the RGB times, whatever the
+         sensor: the experts' privileged view.
+
+sensor "ideal8" (default, the benchmark the shipped checkpoints were trained on): rgb is
+the ideal render (blurred over rgb_blur sub-frames when the scene sets it) and luma its
+8-bit luma. sensor "physical" (sebvs.sensors.rig, docs/sensors.md): the scene's light in
+cd/m^2 (Scene.photometry) rendered beyond 8 bits; rgb is a modelled frame camera's image
+(EMVA 1288 terms: exposure and gain under auto exposure, shot, read and dark noise, full
+well, ADC, tone curve, motion blur integrated from sub-frames over the exposure; its
+exposure ends readout_s before the tick, meta exposure_s, gain_db, t_exposure_end), and
+luma carries the scene's luminance {"luma": (h, w) float32 cd/m^2, meta units "cd/m2"},
+which the emulator reads as linear light.
 H, W = scene.image_shape() (the scene config's height/width). Frames are rendered straight into the
 runtime's shared-memory slots (self.reserve).
 """
@@ -19,13 +31,14 @@ from __future__ import annotations
 
 import collections
 import math
-from dataclasses import dataclass
-from typing import Annotated
+from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
+from sebvs.sim.poses import StateHistory
 from sebvs.sim.render import FrameRenderer
 
 import mujoco  # noqa: E402
@@ -50,7 +63,7 @@ class _Rate:
 
 class Camera(Actor):
     inputs = ("state",)
-    outputs = ("rgb", "luma", "depth", "seg")
+    outputs = ("rgb", "luma", "depth", "seg", "ideal")
 
     @dataclass
     class Params:
@@ -61,6 +74,14 @@ class Camera(Actor):
                                    # render luma at this fraction of H, W (own renderer):
                                    # 0.5 is the emulator's downsample done by the GPU
                                    # path, ~2.6x cheaper per frame at 160 -> 80 px
+        sensor: Literal["ideal8", "physical"] = "ideal8"
+        frame_camera: str = "mv_global_shutter"   # sebvs.sensors.framecam preset
+        frame_overrides: dict = field(default_factory=dict)   # e.g. { readout_s = 0.002 }
+        subframe_s: Annotated[float, Range(gt=0, le=0.1)] = 0.002
+                                   # one sub-frame render per this much exposure...
+        max_subframes: Annotated[int, Range(ge=1, le=256)] = 16   # ...at most this many
+        radiance_ratio: Annotated[float, Range(gt=1, le=64)] = 16.0
+                                   # exposure ratio between the radiance render's channels
 
     async def setup(self) -> None:
         self.key = None            # (scene name, config) of the compiled model
@@ -71,9 +92,39 @@ class Camera(Actor):
         self.episode = None
         self.last_t: float | None = None
         self.warned_rate = False
-        self.counts = {"rgb": 0, "luma": 0, "depth": 0, "seg": 0, "no_model": 0}
+        self.counts = {"rgb": 0, "luma": 0, "depth": 0, "seg": 0, "ideal": 0,
+                       "no_model": 0, "subframes": 0, "clipped_px": 0}
         self.wanted = {o for o in self.outputs if o in self.consumed}
-        self.log.info("camera: rendering %s", sorted(self.wanted) or "nothing")
+        self.physical = self.params.sensor == "physical"
+        self.rig = None
+        self.control_hz = 10.0     # the sim's, from the episode's first state
+        if self.physical:
+            from sebvs.sensors.framecam import preset
+            self.frame_params = preset(self.params.frame_camera,
+                                       **self.params.frame_overrides)
+            # exposure (<= 0.1 s) plus readout, and one state before them
+            self.states = StateHistory(self.frame_params.exposure_max_s
+                                       + self.frame_params.readout_s + 0.05)
+        self.log.info("camera: rendering %s, sensor %s", sorted(self.wanted) or "nothing",
+                      self.params.sensor)
+
+    def _build_rig(self, frame_rate_hz: float) -> None:
+        from sebvs.sensors.rig import SensorRig
+        photometry = self.scene.photometry()
+        if self.rig is not None and self.rig.colour is self.renderer and \
+                self.rig.params.frame_rate_hz == min(self.frame_params.frame_rate_hz,
+                                                     frame_rate_hz):
+            self.rig.set_scene(self.model, photometry)
+            return
+        if self.rig is not None:
+            self.rig.close()
+        p = self.params
+        self.rig = SensorRig(self.renderer, photometry, self.frame_params, frame_rate_hz,
+                             p.subframe_s, p.max_subframes, p.radiance_ratio)
+        self.log.info("camera: physical sensor, radiance range %.3g-%.3g cd/m^2 (%.0f dB), "
+                      "frame camera %s at %g Hz", self.rig.radiance.floor_cd_m2,
+                      self.rig.radiance.top_cd_m2, self.rig.radiance.dynamic_range_db,
+                      p.frame_camera, self.rig.params.frame_rate_hz)
 
     def _build(self, scene_name: str, config: dict) -> None:
         self.scene = make_scene(scene_name, **config)
@@ -102,6 +153,8 @@ class Camera(Actor):
                                             self.luma_renderer.width) != (self.lh, self.lw):
             self.luma_renderer = self.renderer.view(self.lh, self.lw)
         self.key = (scene_name, config)
+        if self.physical:
+            self._build_rig(self.params.rgb_hz or float(self.control_hz))
         self.log.info("camera: compiled %s %s, %dx%d, camera %s, blur %d", scene_name, config,
                       self.w, self.h, cam, self.blur)
 
@@ -111,6 +164,8 @@ class Camera(Actor):
 
     async def on_state(self, msg: Message) -> None:
         meta = msg.meta
+        if "control_hz" in meta:
+            self.control_hz = meta["control_hz"]
         if "config" in meta and (meta["scene"], meta["config"]) != self.key:
             self._build(meta["scene"], meta["config"])
         if self.renderer is None:
@@ -123,6 +178,9 @@ class Camera(Actor):
             self.rgb_rate, self.luma_rate = _Rate(self.params.rgb_hz), _Rate(self.params.dvs_hz)
             self.history.clear()
             self.last_t = None
+            if self.physical:
+                self.states.clear()
+                self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
         # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
         # that flag to the accumulator, which closes its windows on it.
         want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
@@ -134,27 +192,49 @@ class Camera(Actor):
         self.last_t = t_ep
         rgb_due = control if self.params.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
         want_rgb = "rgb" in self.wanted and rgb_due
-        if self.blur > 1 and "rgb" in self.wanted:
+        want_ideal = "ideal" in self.wanted and rgb_due
+        if self.physical and "rgb" in self.wanted:
+            self.states.add(t_ep, msg.arrays)
+        if self.blur > 1 and self.wanted & {"rgb", "ideal"}:
             self._remember(msg.arrays)
-        if not (want_luma or want_rgb or (rgb_due and self.wanted & {"depth", "seg"})):
+        if not (want_luma or want_rgb or want_ideal
+                or (rgb_due and self.wanted & {"depth", "seg"})):
             return
+        out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
+        if want_rgb and self.physical:
+            await self._emit_frame(msg, t_ep, {**out_meta, "truth": meta.get("truth")})
         self._pose(msg.arrays)
         r = self.renderer
         r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
-        out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
         sharp = None          # an unblurred RGB render of this sample, if made
-        if want_rgb:
-            out = self.reserve("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
+        ideal_outputs = [o for o, due in (("rgb", want_rgb and not self.physical),
+                                          ("ideal", want_ideal)) if due]
+        if ideal_outputs:
+            outs = {o: self.reserve(o, {"rgb": ((self.h, self.w, 3), np.uint8)})
+                    for o in ideal_outputs}
+            first = outs[ideal_outputs[0]]["rgb"]
             if self.blur > 1:
                 # the history ends with this sample, so its pose is the one left in
                 # self.data and in the scene for the luma, depth and seg renders below
-                r.rgb_blurred(self.data, self.cam, self.history, out["rgb"], self._pose)
+                r.rgb_blurred(self.data, self.cam, self.history, first, self._pose)
             else:
-                sharp = r.rgb(out["rgb"])
-            await self.emit("rgb", out, parent=msg,
-                            meta={**out_meta, "truth": meta.get("truth")})
-            self.counts["rgb"] += 1
-        if want_luma:
+                sharp = r.rgb(first)
+            for o in ideal_outputs:
+                if outs[o]["rgb"] is not first:
+                    np.copyto(outs[o]["rgb"], first)
+                await self.emit(o, outs[o], parent=msg,
+                                meta={**out_meta, "truth": meta.get("truth")})
+                self.counts[o] += 1
+        if want_luma and self.physical:
+            out = self.reserve("luma", {"luma": ((self.lh, self.lw), np.float32)})
+            lum = self.rig.luminance(self.data, self.cam, self._light_scale(msg.arrays),
+                                     None if self.luma_renderer is not None else out["luma"])
+            if self.luma_renderer is not None:
+                self.rig.luminance_at((self.lh, self.lw), lum, out["luma"])
+            self.counts["clipped_px"] += self.rig.radiance.clipped
+            await self.emit("luma", out, parent=msg, meta={**out_meta, "units": "cd/m2"})
+            self.counts["luma"] += 1
+        elif want_luma:
             out = self.reserve("luma", {"luma": ((self.lh, self.lw), np.uint8)})
             if self.luma_renderer is not None:
                 self.luma_renderer.luma(out["luma"])
@@ -173,6 +253,25 @@ class Camera(Actor):
             await self.emit("seg", out, parent=msg, meta=out_meta)
             self.counts["seg"] += 1
 
+    @staticmethod
+    def _light_scale(state: dict) -> float:
+        light = state.get("light")
+        return 1.0 if light is None else float(light[0])
+
+    async def _emit_frame(self, msg: Message, t_ep: float, meta: dict) -> None:
+        """The modelled frame camera's image at this tick: exposed up to readout_s
+        before it (sebvs.sensors.rig)."""
+        t_end = t_ep - self.rig.readout_s
+        out = self.reserve("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
+        frame = self.rig.frame(self.states, self._pose, self.data, self.cam, t_end,
+                               self._light_scale)
+        out["rgb"][...] = frame.image
+        self.counts["subframes"] = self.rig.subframes_rendered
+        await self.emit("rgb", out, parent=msg, meta={
+            **meta, "exposure_s": frame.exposure_s, "gain_db": frame.gain_db,
+            "t_exposure_end": frame.t_end_s, "saturated": frame.saturated_fraction})
+        self.counts["rgb"] += 1
+
     def _remember(self, state: dict) -> None:
         """Keep a copy of this state for the blur (its arrays are views of the sender's ring
         slots, which it reuses); the copy the full history evicts is refilled, not freed."""
@@ -188,6 +287,9 @@ class Camera(Actor):
         self.history.append({k: np.array(a) for k, a in state.items()})
 
     def _close(self) -> None:
+        if self.rig is not None:
+            self.rig.close()
+            self.rig = None
         if self.renderer is not None:
             self.renderer.close()           # and its view, the luma renderer
         self.renderer = self.luma_renderer = None

@@ -1,6 +1,8 @@
 """The event emulator actor: luma frames in, event packets out (sebvs.dvs.emulator).
 
-Input   luma    {"luma": uint8 [H, W]} from the camera at its dvs rate; t_sim -> timestamp
+Input   luma    {"luma": uint8 [H, W]} from the camera at its dvs rate; t_sim -> timestamp;
+                or, from a camera with sensor "physical", float32 luminance in cd/m^2
+                (meta units "cd/m2"), read as linear light (EventEmulator.step_luminance)
 Output  events  {"events": EVENT_DTYPE [N]} (x, y, t ns, p), time-sorted, emitted with the
                 input's tick and meta, plus event_sensor [w, h] and frame [W, H]
 A new episode (meta `episode` changes) restarts the stream: the scene jumps, and a jump
@@ -26,7 +28,7 @@ class Emulator(Actor):
 
     @dataclass
     class Params:
-        preset: Literal["paper", "clean", "noisy"] = "paper"
+        preset: Literal["paper", "clean", "noisy", "physical"] = "paper"
         overrides: dict = field(default_factory=dict)   # e.g. { downsample = 1.0 }
 
     async def setup(self) -> None:
@@ -52,7 +54,11 @@ class Emulator(Actor):
         try:
             # inside the try: round() of an inf t_sim raises OverflowError, of NaN ValueError
             t_ns = round((msg.t_sim or 0.0) * 1e9)
-            events = self.emulator.step(msg.arrays["luma"], t_ns)
+            frame = msg.arrays["luma"]
+            if msg.meta.get("units") == "cd/m2":
+                events = self.emulator.step_luminance(frame, t_ns)
+            else:
+                events = self.emulator.step(frame, t_ns)
         except (ValueError, KeyError, OverflowError) as exc:
             self.bad_frames += 1
             # a stream stuck on bad frames (e.g. time went back) must not flood the log

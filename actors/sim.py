@@ -298,6 +298,7 @@ class Sim(Actor):
                     meta["truth"] = scene.truth(model, data)
                 if step == 0:
                     meta["scene"], meta["config"] = p.scene, self.config
+                    meta["control_hz"] = p.control_hz
                 await self.emit("state", scene.state(data), meta=meta,
                                 t_sim=self.t_offset + data.time, tick=self.tick)
                 if control and self.deadlines is not None and step < n_steps:

@@ -5,6 +5,8 @@ import argparse
 import json
 import sys
 
+from .params import PRESETS
+
 
 def _cmd_v2e(args) -> int:
     from .convert import convert
@@ -38,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "folder and write events/x, y, t (us), p and ms_to_idx.")
     v.add_argument("input", help="video file, or folder of images (sorted by name)")
     v.add_argument("--out", required=True, help="output .h5 file")
-    v.add_argument("--preset", default="paper", choices=["paper", "clean", "noisy"])
+    v.add_argument("--preset", default="paper", choices=sorted(PRESETS))
     v.add_argument("--fps", type=float, default=None,
                    help="frame rate (required for image folders; overrides a video's)")
     v.add_argument("--seed", type=int, default=None)

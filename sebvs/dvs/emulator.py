@@ -17,6 +17,14 @@ Per pixel, for 8-bit luma x (DN):
           stretch: per pixel and call at most leak_rate * max_gap_s leak events, one shot
           noise event, and the lin-log range over the threshold of crossings
 
+Linear light (step_luminance): a frame of scene luminance in cd/m^2, float, with no upper
+bound, is mapped to DN-equivalents x = 255 * L / reference_cd_m2 and runs through the same
+model unclipped: the log range is the chip's, not 8 bits', and the photoreceptor's
+bandwidth a = (x + 20) / 275 and the shot-noise rate (full below x = 0, a quarter at and
+above x = 255) follow the light as in v2e, so a dusk scene (x of a few DN) has a slow,
+noisy pixel and a sunlit one a fast, clean one. reference_cd_m2 is the luminance the
+chip's 8-bit-era parameters were set for: the paper's cutoff_hz holds at x = 255.
+
 Timing: the k-th crossing of a pixel is placed where the straight line from the previous
 filtered level to the new one crosses base + k * theta (ESIM's interpolation), not in a
 slot shared by every pixel's k-th event (v2e's bursts and "pillars"). Timestamps are int64
@@ -113,7 +121,7 @@ class EventEmulator:
             frame = cv2.GaussianBlur(frame, (3, 3), 0)
         return frame
 
-    def _check(self, frame, t_ns) -> tuple[np.ndarray, int]:
+    def _check(self, frame, t_ns, linear: bool = False) -> tuple[np.ndarray, int]:
         if not isinstance(frame, np.ndarray):
             raise ValueError(f"frame must be a numpy array, got {type(frame).__name__}")
         if frame.dtype != np.uint8:
@@ -121,8 +129,11 @@ class EventEmulator:
                 raise ValueError(f"frame dtype {frame.dtype} is not uint8 (or float in DN)")
             if not np.isfinite(frame).all():
                 raise ValueError("frame contains NaN or inf")
-            if frame.size and (frame.min() < 0 or frame.max() > 255):
-                raise ValueError("float frame values must lie in [0, 255] (8-bit DN)")
+            if frame.size and frame.min() < 0:
+                raise ValueError("frame values must not be negative")
+            if not linear and frame.size and frame.max() > 255:
+                raise ValueError("float frame values must lie in [0, 255] (8-bit DN); "
+                                 "linear luminance goes to step_luminance()")
             frame = frame.astype(np.float32)
         if not (frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 3)):
             raise ValueError(f"frame shape {frame.shape} is not (H, W) or (H, W, 3)")
@@ -176,6 +187,18 @@ class EventEmulator:
     def step(self, frame: np.ndarray, t_ns: int) -> np.ndarray:
         """Feed one frame taken at ``t_ns``; returns the events since the previous frame."""
         frame, t_ns = self._check(frame, t_ns)
+        return self._step(frame, t_ns)
+
+    def step_luminance(self, luminance: np.ndarray, t_ns: int) -> np.ndarray:
+        """Feed one frame of linear scene luminance (cd/m^2, float (H, W) or linear RGB
+        (H, W, 3)) taken at ``t_ns``; the events since the previous frame."""
+        if isinstance(luminance, np.ndarray) and luminance.dtype.kind != "f":
+            raise ValueError(f"luminance dtype {luminance.dtype} is not float (cd/m^2)")
+        frame, t_ns = self._check(luminance, t_ns, linear=True)
+        scale = np.float32(255.0 / self.params.reference_cd_m2)
+        return self._step(frame * scale, t_ns)
+
+    def _step(self, frame: np.ndarray, t_ns: int) -> np.ndarray:
         luma = self.preprocess(frame)
         if self.t_ns is None:
             self.input_shape = frame.shape
@@ -283,7 +306,7 @@ class EventEmulator:
     def _shot_noise(self, luma, t0, dt_ns) -> np.ndarray:
         """At most one noise event per pixel per frame, probability rate * dt (capped at 1)."""
         dt = dt_ns * 1e-9
-        brightness = luma.astype(np.float32) / 255.0
+        brightness = np.minimum(luma.astype(np.float32) / 255.0, 1.0)
         prob = self.noise_rate * (1.0 - 0.75 * brightness) * dt
         hit = np.flatnonzero(self.rng.random(self.shape, dtype=np.float32) < prob)
         ev = np.empty(hit.size, EVENT_DTYPE)

@@ -51,6 +51,17 @@ class _Canvas:
                              f"smaller than the {width}x{height} render: raise "
                              f"<visual><global offwidth=... offheight=...> in its XML")
 
+    def unclamp_lighting(self) -> None:
+        """Stop GL clamping lit vertex colours to [0, 1] before textures modulate them.
+
+        MuJoCo draws with the fixed-function pipeline, which by default clamps the
+        lighting result per vertex; only the written colour needs clamping (it is), and
+        light brighter than 1 must reach the texture product for the radiance renderer's
+        exposures (sebvs.sim.radiance). GL 3.0's glClampColor, on this context only."""
+        from OpenGL import GL
+        self.gl.make_current()
+        GL.glClampColor(GL.GL_CLAMP_VERTEX_COLOR, GL.GL_FALSE)
+
     def set_model(self, model: mujoco.MjModel) -> None:
         for height, width in self.sizes:
             self.check(model, height, width)
@@ -146,6 +157,11 @@ class FrameRenderer:
         if self._owner:
             canvas.set_model(model)
 
+    def unclamp_lighting(self) -> None:
+        """Let light brighter than 1 through to textured surfaces (see _Canvas); for
+        this renderer's context and its views."""
+        self._canvas.unclamp_lighting()
+
     def view(self, height: int, width: int) -> "FrameRenderer":
         """A renderer of another size on this one's GL context, model and scene: update()
         on either poses both, set_model() on either switches both. Closed with this one."""
@@ -204,6 +220,35 @@ class FrameRenderer:
         if src is None:
             src = self.rgb(self._scratch)
         cv2.cvtColor(src, cv2.COLOR_RGB2GRAY, dst=out)
+        return out
+
+    def albedo(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The posed scene's surface colours, unshaded: (H, W, 3) uint8 of texture x rgba
+        under a white ambient light of 1, emission off (the skybox as drawn). What a
+        colour camera's chroma is taken from when its light comes from elsewhere
+        (sebvs.sim.radiance): the lights' geometry does not colour it, and it never
+        clips above the surface's own colour."""
+        if out is None:
+            out = np.empty((self.height, self.width, 3), np.uint8)
+        scene = self._canvas.scene
+        lights = [scene.lights[i] for i in range(scene.nlight)]
+        geoms = [scene.geoms[i] for i in range(scene.ngeom)]
+        saved = ([(lt.ambient.copy(), lt.diffuse.copy(), lt.specular.copy()) for lt in lights],
+                 [g.emission for g in geoms])
+        try:
+            for i, lt in enumerate(lights):
+                lt.ambient[:] = 1.0 if i == 0 else 0.0
+                lt.diffuse[:] = 0.0
+                lt.specular[:] = 0.0
+            for g in geoms:
+                g.emission = 0.0
+            self._draw(self._scratch, None)
+        finally:
+            for lt, (a, d, sp) in zip(lights, saved[0]):
+                lt.ambient[:], lt.diffuse[:], lt.specular[:] = a, d, sp
+            for g, e in zip(geoms, saved[1]):
+                g.emission = e
+        cv2.flip(self._scratch, 0, dst=out)
         return out
 
     def depth(self, out: np.ndarray | None = None) -> np.ndarray:

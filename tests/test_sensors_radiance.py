@@ -1,0 +1,222 @@
+"""The light path beyond 8 bits: the radiance render, its decoding, the emulator on linear
+light, the poses between states and the camera actor's physical sensor."""
+import math
+
+import numpy as np
+import pytest
+
+from sebvs.sim.render import FrameRenderer  # sets MUJOCO_GL before mujoco is imported
+
+import mujoco  # noqa: E402
+
+from actors.camera import Camera  # noqa: E402
+from sebvs.dvs.emulator import EventEmulator  # noqa: E402
+from sebvs.dvs.params import preset as dvs_preset  # noqa: E402
+from sebvs.sensors import validate  # noqa: E402
+from sebvs.sensors.light import Photometry  # noqa: E402
+from sebvs.sim import make_scene  # noqa: E402
+from sebvs.sim.poses import StateHistory, interpolate_state  # noqa: E402
+from sebvs.sim.radiance import (RadianceRenderer, channel_gains, decode,  # noqa: E402
+                                luminance)
+from tests.test_camera_output import camera_outputs, sim_states  # noqa: E402
+
+
+# ------------------------------------------------------------------ radiance render
+def test_radiance_range_spans_100_db_within_half_an_lsb():
+    r = validate.radiance_range(size=64)
+    assert r["dynamic_range_db"] >= 100
+    # every patch from blue's 1 DN to red's clip decodes within GL's rounding
+    assert r["max_error_lsb"] <= 0.6
+    assert r["range_detectable_db"] >= 90
+    assert r["range_5pct_db"] >= 75
+
+
+def test_decode_takes_the_most_exposed_unclipped_channel():
+    gains = channel_gains(16.0)
+    rgb = np.array([[[10, 160, 255], [200, 255, 255], [0, 0, 40], [255, 255, 255]]],
+                   np.uint8)
+    value, clipped = decode(rgb, gains)
+    assert value[0, 0] == pytest.approx(160 / 16 / 255)       # blue clipped: green
+    assert value[0, 1] == pytest.approx(200 / 255)            # both clipped: red
+    assert value[0, 2] == pytest.approx(40 / 256 / 255)       # blue
+    assert clipped == 1
+
+
+def nav_pose(**config):
+    scene = make_scene("nav", width=96, height=96, **config)
+    model = scene.compile()
+    data = mujoco.MjData(model)
+    scene.reset(model, data, np.random.default_rng(0))
+    scene.kinematics(model, data)
+    return scene, model, data
+
+
+def test_radiance_render_is_the_colour_renders_luminance_where_that_is_valid():
+    scene, model, data = nav_pose()
+    ph = Photometry(400.0)
+    with FrameRenderer(model, 96, 96) as colour, RadianceRenderer(model, ph, 96, 96) as rr:
+        colour.update(data, "front")
+        rgb = colour.rgb()
+        rr.update(data, "front")
+        lum = rr.luminance()
+    ref = luminance(rgb / 255.0) * ph.unit_cd_m2
+    ok = (rgb.max(-1) < 250) & (rgb.min(-1) > 20)     # neither clipped nor quantised away
+    ratio = lum[ok] / ref[ok]
+    assert ok.sum() > 1000
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.03)
+    assert np.percentile(np.abs(ratio - 1), 90) < 0.06
+
+
+def test_radiance_render_follows_the_flicker_as_the_colour_render_does():
+    scene, model, data = nav_pose()
+    ph = Photometry(400.0)
+    with FrameRenderer(model, 96, 96) as colour, RadianceRenderer(model, ph, 96, 96) as rr:
+        out = {}
+        for s in (1.0, 0.5):
+            scene.set_light_scale(model, s)
+            colour.update(data, "front")
+            rr.update(data, "front", light_scale=s)
+            out[s] = (luminance(colour.rgb() / 255.0), rr.luminance().copy())
+        assert rr.clipped == 0
+    (c1, r1), (c5, r5) = out[1.0], out[0.5]
+    ok = (c1 > 20 / 255) & (c1 < 240 / 255) & (c5 > 20 / 255)
+    changed = ok & (c5 < 0.9 * c1)          # pixels the lights' diffuse reaches
+    assert changed.sum() > 100
+    assert np.median((r5 / r1)[changed] / (c5 / c1)[changed]) == pytest.approx(1.0, abs=0.03)
+
+
+def test_a_textured_surface_gets_light_above_one():
+    """GL clamps lit vertex colours to 1 before a texture multiplies them unless told not
+    to: then green and blue would stop at the texel (unclipped, wrongly decoded)."""
+    xml = """<mujoco><visual><quality offsamples="0" shadowsize="0"/>
+      <global offwidth="32" offheight="32"/><headlight ambient="0 0 0" diffuse="0 0 0"
+      specular="0 0 0"/></visual><asset><texture name="t" type="2d" builtin="flat" rgb1="0.5 0.5 0.5"
+      rgb2="0.5 0.5 0.5" width="8" height="8"/><material name="m" texture="t"/></asset>
+      <worldbody><light directional="true" dir="0 0 -1" diffuse="1 1 1" specular="0 0 0"
+      castshadow="false"/><geom type="plane" size="5 5 1" material="m"/>
+      <camera name="c" pos="0 0 2" xyaxes="1 0 0 0 1 0"/></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    with RadianceRenderer(model, Photometry(math.pi), 32, 32) as rr:     # unit 1 cd/m^2
+        rr.update(data, "c")
+        lum = rr.luminance()
+    texel = 128 / 255.0                              # the texture's 8-bit grey
+    assert np.median(lum) == pytest.approx(texel, rel=0.02)
+
+
+# ------------------------------------------------------------------ emulator on linear light
+def test_linear_luminance_below_reference_matches_the_8_bit_float_path():
+    p = dvs_preset("clean", downsample=1.0, blur=False)
+    rng = np.random.default_rng(0)
+    frames = [rng.uniform(1, 250, (8, 8)).astype(np.float32) for _ in range(4)]
+    a, b = EventEmulator(p), EventEmulator(p)
+    ref = p.reference_cd_m2
+    for i, f in enumerate(frames):
+        ea = a.step(f, i * 10_000_000)
+        eb = b.step_luminance(f * np.float32(ref / 255.0), i * 10_000_000)
+        # the same events; times within a ns or so (float32 scaling of the input)
+        assert np.array_equal(ea["p"], eb["p"]) and np.array_equal(ea["x"], eb["x"])
+        assert np.abs(ea["t"] - eb["t"]).max(initial=0) <= 1000
+
+
+def test_linear_luminance_has_no_8_bit_ceiling():
+    em = EventEmulator(dvs_preset("clean", downsample=1.0, blur=False))
+    em.step_luminance(np.full((4, 4), 1e5, np.float32), 0)
+    ev = em.step_luminance(np.full((4, 4), 1e6, np.float32), 10_000_000)
+    # ln(10) / 0.3 = 7.7 crossings per pixel, all ON
+    assert ev.size == 16 * 7 and np.all(ev["p"] == 1)
+    with pytest.raises(ValueError, match="negative"):
+        em.step_luminance(np.full((4, 4), -1.0, np.float32), 20_000_000)
+    with pytest.raises(ValueError, match="NaN"):
+        em.step_luminance(np.full((4, 4), np.nan, np.float32), 20_000_000)
+    with pytest.raises(ValueError, match="not float"):
+        em.step_luminance(np.zeros((4, 4), np.uint8), 20_000_000)
+    with pytest.raises(ValueError, match="step_luminance"):
+        EventEmulator().step(np.full((4, 4), 300.0, np.float32), 0)
+
+
+def first_event_delay(level_cd_m2: float) -> float:
+    """Seconds from a 4x step up in luminance to its first event (paper thresholds and
+    bandwidth, no noise), sampled at 1 kHz."""
+    em = EventEmulator(dvs_preset("paper", downsample=1.0, blur=False, sigma_thres=0.0))
+    em.step_luminance(np.full((2, 2), level_cd_m2, np.float32), 0)
+    for k in range(1, 2001):
+        ev = em.step_luminance(np.full((2, 2), 4 * level_cd_m2, np.float32), k * 1_000_000)
+        if ev.size:
+            return ev["t"].min() * 1e-9
+    return math.inf
+
+
+def test_low_light_slows_the_pixel():
+    bright, dusk = first_event_delay(100.0), first_event_delay(0.3)
+    assert bright < 0.02
+    assert dusk > 3 * bright
+
+
+def test_low_light_dirties_the_pixel():
+    """Shot noise at v2e's intensity dependence: more noise events in the dark."""
+    counts = {}
+    for name, level in (("dark", 0.05), ("bright", 500.0)):
+        em = EventEmulator(dvs_preset("physical", downsample=1.0, blur=False, leak_rate_hz=0.0))
+        frame = np.full((32, 32), level, np.float32)
+        counts[name] = sum(em.step_luminance(frame, k * 10_000_000).size for k in range(101))
+    assert counts["dark"] > 2 * counts["bright"] > 0
+
+
+# ------------------------------------------------------------------ poses
+def test_interpolated_state_moves_along_the_joints_and_normalises_quaternions():
+    scene, model, data = nav_pose()
+    a = scene.state(data)
+    b = {k: v.copy() for k, v in a.items()}
+    b["qpos"][:3] += [1.0, -2.0, 0.5]
+    b["mocap_quat"][:] = [0.0, 0.0, 0.0, 1.0]
+    mid = interpolate_state(model, a, b, 0.5)
+    assert np.allclose(mid["qpos"][:3], a["qpos"][:3] + [0.5, -1.0, 0.25])
+    assert np.allclose(np.linalg.norm(mid["mocap_quat"], axis=-1), 1.0)
+    history = StateHistory(keep_s=0.05)
+    for k in range(100):
+        s = {key: v.copy() for key, v in a.items()}
+        s["qpos"][0] = k * 0.01
+        history.add(k * 0.01, s)
+    assert len(history.times) <= 7                       # the window and one before it
+    assert history.at(model, 0.985)["qpos"][0] == pytest.approx(0.985)
+    assert history.at(model, 0.0)["qpos"][0] == pytest.approx(history.times[0])
+    assert history.at(model, 5.0)["qpos"][0] == pytest.approx(0.99)
+
+
+# ------------------------------------------------------------------ the rig, measured
+def test_blur_through_the_rig_is_speed_times_exposure():
+    r = validate.blur_length(speed_px_s=2000.0, exposure_s=0.01, size=64)
+    assert r["blur_length_error"] < 0.10
+
+
+def test_a_10000_to_1_step_loses_one_side_of_the_frame_and_neither_of_the_events():
+    r = validate.step_range(size=64, seconds=0.4)
+    assert r["dim"]["frame_lost_fraction"] > 0.9
+    assert r["bright"]["frame_lost_fraction"] < 0.1
+    for side in ("dim", "bright"):
+        assert r[side]["event_edge_coverage"] >= 0.8
+
+
+# ------------------------------------------------------------------ camera actor
+def test_physical_camera_emits_modelled_frames_and_linear_luminance():
+    states = sim_states({"variant": "indoor", "width": 64, "height": 64})
+    emitted = camera_outputs(states, {"rgb", "luma", "ideal"}, sensor="physical",
+                             dvs_hz=100.0)
+    rgb = [(a, m) for o, a, m, *_ in emitted if o == "rgb"]
+    luma = [(a, m) for o, a, m, *_ in emitted if o == "luma"]
+    ideal = [(a, m) for o, a, m, *_ in emitted if o == "ideal"]
+    assert len(rgb) == len(ideal) == 4 and len(luma) == 31
+    for arrays, meta in rgb:
+        assert arrays["rgb"].dtype == np.uint8 and arrays["rgb"].shape == (64, 64, 3)
+        assert 0 < meta["exposure_s"] <= 0.1 and meta["t_exposure_end"] < meta["t_ep"]
+        assert meta["truth"] is not None
+    for arrays, meta in luma:
+        assert arrays["luma"].dtype == np.float32 and meta["units"] == "cd/m2"
+        assert np.isfinite(arrays["luma"]).all() and arrays["luma"].min() >= 0
+    # the privileged view is the ideal render, not the noisy frame
+    ideal8 = camera_outputs(states, {"rgb"}, dvs_hz=100.0)
+    assert all(np.array_equal(a["rgb"], b[0]["rgb"]) for a, b in
+               zip([x[1] for x in ideal8 if x[0] == "rgb"], ideal))
+    assert not np.array_equal(rgb[-1][0]["rgb"], ideal[-1][0]["rgb"])
