@@ -14,6 +14,8 @@ LAYERS = (
     # fan-out of episodes: runs topology shards through the runtime for data and eval
     {"sebvs.scale"},
     {"sebvs.data", "sebvs.experts"},
+    # the sensor models on the scenes' light, and their validation against the experts
+    {"sebvs.sensors"},
     {"sebvs.policy"},
     {"sebvs.eval", "sebvs.numerics"},
     {"sebvs.cli", "sebvs.demo", "actors"},

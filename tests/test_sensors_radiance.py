@@ -13,7 +13,7 @@ from actors.camera import Camera  # noqa: E402
 from sebvs.dvs.emulator import EventEmulator  # noqa: E402
 from sebvs.dvs.params import preset as dvs_preset  # noqa: E402
 from sebvs.sensors import validate  # noqa: E402
-from sebvs.sensors.light import Photometry  # noqa: E402
+from sebvs.sim.light import Photometry  # noqa: E402
 from sebvs.sim import make_scene  # noqa: E402
 from sebvs.sim.poses import StateHistory, interpolate_state  # noqa: E402
 from sebvs.sim.radiance import (RadianceRenderer, channel_gains, decode,  # noqa: E402
@@ -220,3 +220,18 @@ def test_physical_camera_emits_modelled_frames_and_linear_luminance():
     assert all(np.array_equal(a["rgb"], b[0]["rgb"]) for a, b in
                zip([x[1] for x in ideal8 if x[0] == "rgb"], ideal))
     assert not np.array_equal(rgb[-1][0]["rgb"], ideal[-1][0]["rgb"])
+
+
+def test_nav_cells_at_the_sensor_separate_nominal_from_hdr():
+    """The benchmark discriminates without training: the colour detector on the modelled
+    frames finds the target in the nominal cell and loses it against the HDR windows,
+    while the privileged expert (the ideal render) tracks in both."""
+    nominal = validate.nav_cell({"lighting": "nominal"}, seed=0, episode_s=2.5, size=96)
+    hdr = validate.nav_cell({"lighting": "hdr"}, seed=0, episode_s=2.5, size=96)
+    assert nominal["scored_ticks"] >= 10 and hdr["scored_ticks"] >= 10
+    assert nominal["detector_hit_rate"] >= 0.9 and nominal["target_lost_fraction"] < 0.1
+    assert hdr["detector_hit_rate"] < 0.5 and hdr["target_lost_fraction"] > 0.5
+    assert nominal["expert_paper_rate"] >= 0.95 and hdr["expert_paper_rate"] >= 0.95
+    for r in (nominal, hdr):
+        assert 0 <= r["event_background_coverage"] <= 1
+        assert 0 <= r["event_edge_coverage"] <= r["event_edge_coverage_raw"] <= 1

@@ -67,11 +67,14 @@ PRESETS: dict[str, EmulatorParams] = {
     # a dim, leaky, noisy sensor (v2e's "noisy" spirit: shot noise, leak, refractory)
     "noisy": EmulatorParams(shot_noise_rate_hz=5.0, leak_rate_hz=0.1,
                             refractory_period_s=0.0005, noise_rate_cov_decades=0.5),
-    # the paper's pixel on linear light, with a bright-light bandwidth and background
-    # activity of a real chip's order (v2e's own defaults are a few hundred Hz; its noisy
-    # preset has 5 Hz shot noise in the dark): slow and noisy at dusk, fast when bright
-    "physical": EmulatorParams(cutoff_hz=200.0, shot_noise_rate_hz=1.0, leak_rate_hz=0.1,
-                               refractory_period_s=0.0005, noise_rate_cov_decades=0.5),
+    # the paper's thresholds on a chip's linear light: the photoreceptor's log range
+    # reaches down to its dark-current break (x = 20) at 0.1 cd/m^2, 120 dB below sunlit
+    # surfaces (event sensors' published ~120 dB); bandwidth cutoff_hz x (x + 20) / 275:
+    # ~2 kHz in office light (x ~ 2e4), ~10 Hz at dusk; background activity of a real
+    # chip's order (between v2e's clean and noisy presets: 5 Hz shot noise in its noisy one)
+    "physical": EmulatorParams(reference_cd_m2=1.27, cutoff_hz=30.0, shot_noise_rate_hz=0.5,
+                               leak_rate_hz=0.05, refractory_period_s=0.0005,
+                               noise_rate_cov_decades=0.5),
 }
 
 

@@ -68,7 +68,7 @@ ARM_CONDITIONS: dict[str, list[str]] = {
     "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8"],
 }
 # The physical conditions: light, flicker and motion as physical quantities (the scenes'
-# photometry(), sebvs/sensors/light.py; docs/sim.md, "Conditions in physical terms"), for
+# photometry(), sebvs/sim/light.py; docs/sim.md, "Conditions in physical terms"), for
 # cameras that model a sensor on physical light (camera.sensor="physical"). Not part of
 # "all" (the six above are the 8-bit benchmark); `--conditions physical` runs them.
 PHYSICAL = 'camera.sensor="physical"'

@@ -32,7 +32,7 @@ from ..sim.poses import StateHistory
 from ..sim.radiance import REC709, RadianceRenderer
 from ..sim.render import FrameRenderer
 from .framecam import Frame, FrameCamera, FrameCameraParams, subframe_times
-from .light import Photometry
+from ..sim.light import Photometry
 
 # below this unshaded luminance a surface's colour is unknown: taken as grey
 _CHROMA_FLOOR = 2.0 / 255.0

@@ -85,7 +85,7 @@ class ArmScene(Scene):
                   refsafe off (the stiff case), as the nav scene
     plus integrator, timestep, shadows (Scene).
 
-    Light (photometry(), sebvs/sensors/light.py): "nominal" and "flicker" at
+    Light (photometry(), sebvs/sim/light.py): "nominal" and "flicker" at
     illuminance_lux, "low" those lights dimmed as the render dims them (x 0.16), "dusk" at
     dusk_lux; "hdr" is a backlit cell: the belt and cubes in the shade at hdr_lux and a
     lamp beside the belt, a self-luminous panel (material "hdr_lamp", lamp_cd_m2: a lamp,

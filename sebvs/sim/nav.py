@@ -35,7 +35,7 @@ from .trajectories import SPEEDS, TrajectoryConfig, WaypointTrajectory
 VARIANTS = ("indoor", "outdoor")
 LIGHTING = ("nominal", "low", "flicker", "dusk", "hdr")
 # Nominal illuminance (lux) per variant (public orders of magnitude: an office, an
-# overcast day) and the shade's under the "hdr" lighting (sebvs/sensors/light.py).
+# overcast day) and the shade's under the "hdr" lighting (sebvs/sim/light.py).
 NOMINAL_LUX = {"indoor": 400.0, "outdoor": 1e4}
 HDR_LUX = {"indoor": 30.0, "outdoor": 50.0}
 # The indoor HDR windows: a band on all four walls from sill to head height (m), so one
@@ -84,7 +84,7 @@ class NavScene(Scene):
                   contacts (the issue's stiff case) are really that stiff
     plus integrator, timestep, shadows (Scene).
 
-    Light (photometry(), sebvs/sensors/light.py). The render's lights are relative; the
+    Light (photometry(), sebvs/sim/light.py). The render's lights are relative; the
     config says what they are in physical units: "nominal" and "flicker" at
     illuminance_lux, "low" the same lights dimmed as the render dims them (x 0.16),
     "dusk" at dusk_lux, "hdr" a backlit scene. The outdoor sky is always in view: a

@@ -15,8 +15,8 @@ exposed channel that is not clipped. With K = 16 one render spans
 
 and a relative quantisation step of at most 1 / 15.9 (when blue and then green clip,
 the next channel holds at least 255 / K DN). `scale` s puts the top at the brightest
-luminance the scene declares (sebvs.sensors.light.Photometry.peak_cd_m2, x HEADROOM): brighter light
-clips, as on any sensor, and is counted in `RadianceRenderer.clipped`.
+luminance the scene declares (sebvs.sim.light.Photometry.peak_cd_m2, x HEADROOM):
+brighter light clips, as on any sensor, and is counted in `RadianceRenderer.clipped`.
 
 The grey copy (grey_model):
   textures   each texel's luminance in all three channels; the skybox, which is drawn
@@ -40,7 +40,7 @@ import math
 import mujoco
 import numpy as np
 
-from ..sensors.light import Photometry
+from .light import Photometry
 from .render import FrameRenderer
 
 REC709 = np.array([0.2126, 0.7152, 0.0722])

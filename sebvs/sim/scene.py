@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..sensors.light import Photometry
+    from .light import Photometry
 
 # Integrator names accepted in config -> MuJoCo enum (mujoco.mjtIntegrator).
 INTEGRATORS: dict[str, int] = {
@@ -246,7 +246,7 @@ class Scene(ABC):
         return None
 
     def photometry(self) -> "Photometry":
-        """The physical scale of this config's light (sebvs.sensors.light.Photometry).
+        """The physical scale of this config's light (sebvs.sim.light.Photometry).
 
         illuminance: illuminance_lux (or the scene's default) for "nominal" and
         "flicker"; for "low" the same light scaled as the dim render levels scale it
@@ -260,7 +260,7 @@ class Scene(ABC):
         lights' diffuse, not the headlight's ambient): a white surface renders at
         key * scale + ambient.
         """
-        from ..sensors.light import Photometry
+        from .light import Photometry
         c = self.config
         lighting = c.get("lighting", "nominal")
         nominal = float(c["illuminance_lux"]) if c.get("illuminance_lux") is not None \
