@@ -361,7 +361,7 @@ class FrameCamera:
         signal = self._normalise(raw)
         if auto:
             self._feed_ae(signal)
-        return Frame(raw=raw, image=self._tone(signal), exposure_s=float(exposure_s),
+        return Frame(raw=raw, image=self._tone_lut[raw], exposure_s=float(exposure_s),
                      gain_db=float(gain_db), t_start_s=t_end_s - exposure_s, t_end_s=t_end_s,
                      t_ready_s=t_end_s + self.params.readout_s,
                      saturated_fraction=float(np.mean(raw == self.params.max_dn)))
@@ -413,6 +413,14 @@ class FrameCamera:
         p = self.params
         s = (raw.astype(np.float32) - p.black_level_dn) / (p.max_dn - p.black_level_dn)
         return np.clip(s, 0.0, 1.0)
+
+    @property
+    def _tone_lut(self) -> np.ndarray:
+        """The toned 8-bit value of every raw code (max_dn + 1 entries): one lookup per
+        pixel instead of a power per pixel."""
+        if getattr(self, "_lut", None) is None:
+            self._lut = self._tone(self._normalise(np.arange(self.params.max_dn + 1)))
+        return self._lut
 
     def _tone(self, s: np.ndarray) -> np.ndarray:
         if self.params.tone == "srgb":
