@@ -77,9 +77,11 @@ class Camera(Actor):
         sensor: Literal["ideal8", "physical"] = "ideal8"
         frame_camera: str = "mv_global_shutter"   # sebvs.sensors.framecam preset
         frame_overrides: dict = field(default_factory=dict)   # e.g. { readout_s = 0.002 }
-        subframe_s: Annotated[float, Range(gt=0, le=0.1)] = 0.002
+        subframe_s: Annotated[float, Range(gt=0, le=0.1)] = 0.004
                                    # one sub-frame render per this much exposure...
-        max_subframes: Annotated[int, Range(ge=1, le=256)] = 16   # ...at most this many
+        max_subframes: Annotated[int, Range(ge=1, le=256)] = 8    # ...at most this many
+                                   # (an edge moving more than its width in 1/8 of the
+                                   # exposure then ghosts instead of smearing)
         radiance_ratio: Annotated[float, Range(gt=1, le=64)] = 16.0
                                    # exposure ratio between the radiance render's channels
 

@@ -17,6 +17,10 @@ ceiling   CPU seconds per simulated second of a nav recording's compute with no 
           around it (physics 1 kHz, luma at dvs_hz through the emulator, RGB at 10 Hz),
           split by stage, and the real-time factor that bounds any placement on 1 and 2
           cores: N / that (issue 18's 15x and 10x targets read against it)
+sensors   nav recording at dvs_hz 200 with the camera's sensor "ideal8" and "physical"
+          (sebvs/sensors: radiance render per luma sample, modelled frame camera with
+          sub-frames, emulator preset "physical"), alternating, one episode each per
+          repeat: the real-time factors' medians and their ratio (issue 34: >= 0.7)
 scene switch  milliseconds from a new model to its first frame: a fresh renderer against
           FrameRenderer.set_model() in a warm GL context (what a randomised recording's
           camera pays per episode)
@@ -30,7 +34,7 @@ each repeat, and reports the median per placement; `--pipeline-only` skips physi
 rendering.
 
     tools/bench_sim.py [--quick] [--json FILE] [--placement P[,P...]] [--pipeline-only]
-                       [--ceiling-only]
+                       [--ceiling-only] [--sensors-only]
 """
 from __future__ import annotations
 
@@ -308,6 +312,24 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
             "frames": frames, "wall_s_incl_startup": round(wall, 2)}
 
 
+PHYSICAL_SENSORS = ('camera.sensor="physical"', 'emulator.preset="physical"')
+
+
+def bench_sensors(repeats: int, seconds: float) -> dict:
+    """Recording throughput with either sensor, alternating so a slow phase of this
+    shared machine hits both."""
+    rates: dict[str, list[float]] = {"ideal8": [], "physical": []}
+    for _ in range(repeats):
+        for name, sets in (("ideal8", ()), ("physical", PHYSICAL_SENSORS)):
+            row = bench_record(1, seconds, sets=list(sets))
+            rates[name].append(row["real_time_factor"])
+            print(f"sensors {name:8s} record {row['real_time_factor']}x real time", flush=True)
+    med = {k: statistics.median(v) for k, v in rates.items()}
+    return {"what": f"nav_record at dvs_hz 200, one {seconds:g} s episode per run",
+            "runs": rates, "median": med,
+            "physical_over_ideal8": round(med["physical"] / med["ideal8"], 3)}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
@@ -318,6 +340,8 @@ def main() -> int:
                     help="only the topology runs (no physics or render figures)")
     ap.add_argument("--ceiling-only", action="store_true",
                     help="only the compute ceiling (no physics, render or topology rows)")
+    ap.add_argument("--sensors-only", action="store_true",
+                    help="only the ideal8 / physical sensor recording comparison")
     ap.add_argument("--placement", default="",
                     help="comma-separated [topology] placements to compare, alternating "
                          "(isolated, auto); default: the topology files' own")
@@ -329,6 +353,15 @@ def main() -> int:
                  "config": {"quick": args.quick, "repeats": repeats, "steps": steps,
                             "frames": frames, "statistic": "median"}}
     notes = []
+    if args.sensors_only:
+        out["sensors"] = bench_sensors(args.repeats or (2 if args.quick else 3),
+                                       10.0 if args.quick else 20.0)
+        print(f"sensors: physical / ideal8 = {out['sensors']['physical_over_ideal8']}",
+              flush=True)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(out, indent=1))
+        return 0
     figures = not (args.pipeline_only or args.ceiling_only)   # physics, render, switch rows
     for name in SCENES if figures else ():
         try:

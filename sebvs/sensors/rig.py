@@ -53,8 +53,8 @@ class SensorRig:
     """The frame camera and the event sensor's light for one scene and camera size."""
 
     def __init__(self, colour: FrameRenderer, photometry: Photometry,
-                 params: FrameCameraParams, frame_rate_hz: float, subframe_s: float = 0.002,
-                 max_subframes: int = 16, ratio: float = 16.0) -> None:
+                 params: FrameCameraParams, frame_rate_hz: float, subframe_s: float = 0.004,
+                 max_subframes: int = 8, ratio: float = 16.0) -> None:
         if not subframe_s > 0 or max_subframes < 1:
             raise ValueError(f"sensor rig: subframe_s must be > 0 and max_subframes >= 1, "
                              f"got {subframe_s!r}, {max_subframes!r}")

@@ -142,7 +142,7 @@ def _strip_scene(size: int, fovy: float, extra: str, assets: str = "") -> mujoco
 
 
 def blur_length(speed_px_s: float = 2000.0, exposure_s: float = 0.01, size: int = 96,
-                subframe_s: float = 0.0005, seed: int = 0) -> dict:
+                subframe_s: float = 0.0005, max_subframes: int = 256, seed: int = 0) -> dict:
     """A white bar on a black ground crossing the image at `speed_px_s`, exposed for
     `exposure_s` by the rig: the smear against speed x exposure. The smear is
     sqrt(12 (var_moving - var_still)) of the column profile (a box of width s convolved
@@ -160,7 +160,7 @@ def blur_length(speed_px_s: float = 2000.0, exposure_s: float = 0.01, size: int 
     profiles = {}
     with FrameRenderer(model, size, size) as colour:
         rig = SensorRig(colour, photometry, params, 10.0, subframe_s=subframe_s,
-                        max_subframes=256)
+                        max_subframes=max_subframes)
         try:
             for label, speed in (("still", 0.0), ("moving", speed_px_s)):
                 rig.new_episode(seed)
@@ -310,7 +310,7 @@ def _above_noise(coverage: list[tuple[float, float]]) -> float:
 def nav_cell(config: dict, seed: int = 0, episode_s: float = 6.0, control_hz: float = 10.0,
              dvs_hz: float = 100.0, physics_hz: float = 1000.0, size: int = 160,
              frame_camera: str = "mv_global_shutter", event_preset: str = "physical",
-             frame_rate_hz: float = 30.0) -> dict:
+             frame_rate_hz: float | None = None) -> dict:
     """One nav episode under `config` (scene keys: variant, lighting, target_speed, ...),
     driven by the expert on the ideal render (its privileged view), seen by both modelled
     sensors. Per control tick: does the colour detector find the target in the modelled
@@ -356,7 +356,7 @@ def nav_cell(config: dict, seed: int = 0, episode_s: float = 6.0, control_hz: fl
         scene.kinematics(model, data)
 
     with FrameRenderer(model, size, size) as colour:
-        rig = SensorRig(colour, scene.photometry(), params, frame_rate_hz)
+        rig = SensorRig(colour, scene.photometry(), params, frame_rate_hz or control_hz)
         rig.new_episode(seed)
         try:
             for step in range(n_steps + 1):
