@@ -205,3 +205,26 @@ def test_conditions_all_names_every_condition_of_the_task():
     assert conditions_of("all", "nav") == list(NAV_CONDITIONS)
     assert "moving" in conditions_of("all", "arm") and "moving" not in NAV_CONDITIONS
     assert conditions_of("fast, blur,", "nav") == ["fast", "blur"]
+
+
+def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_path):
+    from sebvs.eval.run import EvalPlan, Run
+    from sebvs.runtime.topology import load_topology, parse_override
+    plan = EvalPlan(task="nav", modalities=["rgb+event"], conditions=["nominal", "flicker_100"],
+                    episodes=1, out=tmp_path, control_hz=30.0)
+    plan.validate()
+    for cond, render, physics in (("nominal", 120.0, 1080.0), ("flicker_100", 1020.0, 1020.0)):
+        for modality in ("rgb+event", "expert"):
+            path, sets = plan.overrides(Run(cond, "indoor", modality))
+            values = {tuple(parse_override(s)[0]): parse_override(s)[1] for s in sets}
+            assert values[("sim", "control_hz")] == 30.0
+            assert values[("sim", "render_hz")] == render
+            assert values[("camera", "dvs_hz")] == render
+            assert values[("sim", "physics_hz")] == physics
+            if modality != "expert":
+                assert values[("accumulator", "window_s")] == pytest.approx(1 / 30)
+            topo = load_topology(path, sets)          # the sim accepts the rates
+            assert topo.actors["sim"].params["control_hz"] == 30.0
+    with pytest.raises(ValueError, match="control-hz"):
+        EvalPlan(task="nav", modalities=["rgb"], conditions=["nominal"], episodes=1,
+                 out=tmp_path, control_hz=-1.0).validate()

@@ -32,7 +32,8 @@ def _cmd_eval(args) -> int:
                     split=args.split, seed=args.seed, checkpoints=args.checkpoints,
                     expert=not args.no_expert,
                     baseline=not args.no_baseline,
-                    extra=args.set, video=args.video, video_episodes=args.video_episodes,
+                    extra=args.set, control_hz=args.control_hz,
+                    video=args.video, video_episodes=args.video_episodes,
                     workers=args.workers, ray=args.ray, max_attempts=args.max_attempts)
     try:
         plan.validate()
@@ -119,6 +120,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "truth, and a caption (modality, tick, centre error or the arm's mode)")
     e.add_argument("--video-episodes", type=int, default=1, metavar="K",
                    help="with --video: the first K episodes of each run (default 1)")
+    e.add_argument("--control-hz", type=float, default=None, metavar="HZ",
+                   help="the control rate (default: the topologies', 10 Hz as the paper): "
+                        "sim and tracker ticks, the event frames' window (one tick) and a "
+                        "render rate that is a whole multiple of it; the physical frame "
+                        "camera runs at it too, capped at its sensor's top rate")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="extra topology overrides for every run")
     e.add_argument("--out", required=True, help="output directory")

@@ -28,6 +28,7 @@ episodes, with the event frames wired to it for the modalities that use them. Wi
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import sys
@@ -175,6 +176,7 @@ class EvalPlan:
     policy_topology: Path | None = None     # None: the task's
     expert_topology: Path | None = None
     extra: list[str] = field(default_factory=list)
+    control_hz: float | None = None   # None: the topologies' (10 Hz, the paper's)
     video: bool = False          # one MP4 per episode of each run ...
     video_episodes: int = 1      # ... for its first K episodes
     # fan-out (sebvs/scale, docs/scale.md): None / 1 runs one topology at a time, here
@@ -212,6 +214,9 @@ class EvalPlan:
             if unknown:
                 raise ValueError(f"unknown {kind} {unknown[0]!r} for task {self.task} "
                                  f"(one of {', '.join(known)})")
+        if self.control_hz is not None and not (isinstance(self.control_hz, (int, float))
+                                                and 0 < self.control_hz <= 1000):
+            raise ValueError(f"--control-hz must be in (0, 1000], got {self.control_hz!r}")
         if self.split not in (*EVAL_SPLITS, "custom"):
             raise ValueError(f"unknown split {self.split!r} (one of {', '.join(EVAL_SPLITS)})")
         if self.seed is None:
@@ -282,6 +287,33 @@ class EvalPlan:
             sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
         return sets
 
+    def rate_overrides(self, run: Run) -> list[str]:
+        """The control rate as a variable: the sim's ticks, the tracker's, the event
+        frames' window (one tick), a render rate that is a whole multiple of the control
+        rate (at least the one the topology or the condition asks for) and a physics rate
+        that is a whole multiple of that (at least the topology's)."""
+        if self.control_hz is None:
+            return []
+        hz = float(self.control_hz)
+        render = float(self.policy_sim().get("render_hz", hz))
+        for text in TASKS[self.task].known_conditions[run.condition]:
+            parts, value = parse_override(text)
+            if parts == ["sim", "render_hz"]:
+                render = float(value)
+        render = hz * max(1, math.ceil(render / hz - 1e-9))
+        # and a physics rate that is a whole multiple of the render rate
+        sim = self.policy_sim()
+        physics = 1.0 / sim["timestep"] if sim.get("timestep") else \
+            float(sim.get("physics_hz", 1000.0))
+        physics = render * max(1, math.ceil(physics / render - 1e-9))
+        sets = [f"sim.control_hz={hz}", f"sim.render_hz={render}", f"camera.dvs_hz={render}",
+                f"tracker.control_hz={hz}",
+                f"sim.timestep={1.0 / physics}" if sim.get("timestep")
+                else f"sim.physics_hz={physics}"]
+        if "events" in MODALITY_INPUTS.get(run.modality, ()):
+            sets.append(f"accumulator.window_s={1.0 / hz}")
+        return sets
+
     def shared_sim(self) -> list[str]:
         """The policy topology's physics and rates, imposed on the expert's run.
 
@@ -308,7 +340,8 @@ class EvalPlan:
         if run.modality == "expert":
             # the policies' rates first: a condition that sets its own (the mains flicker's
             # render_hz) sets them for the expert too
-            return self.expert_topology, run_sets + self.shared_sim() + scene_sets + self.extra
+            return self.expert_topology, (run_sets + self.shared_sim() + scene_sets
+                                          + self.rate_overrides(run) + self.extra)
         if run.modality == BASELINE:
             # the policy topology with the baseline answering each tick instead: the policy,
             # emulator and accumulator then feed nobody and are pruned
@@ -316,7 +349,7 @@ class EvalPlan:
                     'baseline.inputs={rgb={from="camera/rgb", queue=64}}',
                     'sim.inputs.action="baseline/action"',
                     'tracker.inputs.action={from="baseline/action", queue=256}']
-            return self.policy_topology, common + sets + self.extra
+            return self.policy_topology, common + sets + self.rate_overrides(run) + self.extra
         sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{run.modality}"]']
         if "events" not in MODALITY_INPUTS[run.modality]:   # no events wired: the
@@ -326,7 +359,7 @@ class EvalPlan:
             if run.condition in spec.physical:
                 # the event sensor's own physics on linear light: slow and noisy at dusk
                 sets.append('emulator.preset="physical"')
-        return self.policy_topology, common + sets + self.extra
+        return self.policy_topology, common + sets + self.rate_overrides(run) + self.extra
 
     def event_frames(self, modality: str) -> dict | None:
         """The checkpoint config's "event_frames" (how its training data's event frames
