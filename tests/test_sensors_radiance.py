@@ -231,7 +231,7 @@ def test_nav_cells_at_the_sensor_separate_nominal_from_hdr():
     assert nominal["scored_ticks"] >= 10 and hdr["scored_ticks"] >= 10
     assert nominal["detector_hit_rate"] >= 0.9 and nominal["target_lost_fraction"] < 0.1
     assert hdr["detector_hit_rate"] < 0.5 and hdr["target_lost_fraction"] > 0.5
-    assert nominal["expert_paper_rate"] >= 0.95 and hdr["expert_paper_rate"] >= 0.95
+    assert nominal["expert_reference"] >= 0.95 and hdr["expert_reference"] >= 0.95
     for r in (nominal, hdr):
         assert 0 <= r["event_background_coverage"] <= 1
         assert 0 <= r["event_edge_coverage"] <= r["event_edge_coverage_raw"] <= 1

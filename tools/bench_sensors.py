@@ -16,7 +16,8 @@ Top-level keys (issue 34's targets):
                           SNR < 1)                                               (>= 0.30)
   hdr_event_edge_coverage    the same cells: the share of the target's edge pixels the
                           event sensor fired on per 0.1 s, worst cell            (>= 0.80)
-cells: per nav cell (nominal, hdr, dusk, dusk_fast; indoor and outdoor) and seed:
+cells: per nav cell (nominal, hdr, dusk, dusk_fast; indoor and outdoor), arm cell
+  (nominal, moving, hdr, dusk_moving, fast_hdr; the wrist camera at home) and seed:
   detector_hit_rate (the colour detector on the modelled frames), event_edge_coverage
   (and event_edge_coverage_ideal: the ideal pixel on the same light, what the scene's
   motion allows), target_lost_fraction, the privileged expert's paper rate, exposure and gain.
@@ -42,41 +43,53 @@ sys.path.insert(0, str(ROOT))
 from sebvs.sensors import validate  # noqa: E402  (sets MUJOCO_GL before mujoco)
 from sebvs.sensors.framecam import preset  # noqa: E402
 
-CELLS = {"nominal": {"lighting": "nominal"}, "hdr": {"lighting": "hdr"},
-         "dusk": {"lighting": "dusk"},
-         "dusk_fast": {"lighting": "dusk", "target_speed": "fast"}}
+NAV_CELLS = {"nominal": {"lighting": "nominal"}, "hdr": {"lighting": "hdr"},
+             "dusk": {"lighting": "dusk"},
+             "dusk_fast": {"lighting": "dusk", "target_speed": "fast"}}
+# the arm's wrist camera at home over the belt (docs/sim.md: the physical conditions)
+ARM_CELLS = {"nominal": {"lighting": "nominal"},
+             "moving": {"lighting": "nominal", "conveyor": "moving", "belt_speed": 0.08},
+             "hdr": {"lighting": "hdr"},
+             "dusk_moving": {"lighting": "dusk", "conveyor": "moving", "belt_speed": 0.08},
+             "fast_hdr": {"lighting": "hdr", "conveyor": "moving", "belt_speed": 0.25}}
 
 
 def run_cells(variants, seeds, episode_s: float, progress) -> list[dict]:
+    jobs = [("nav", v, name, {**config, "variant": v}) for v in variants
+            for name, config in NAV_CELLS.items()]
+    jobs += [("arm", "arm", name, config) for name, config in ARM_CELLS.items()]
     rows = []
-    for variant in variants:
-        for name, config in CELLS.items():
-            for seed in seeds:
-                t0 = time.perf_counter()
-                r = validate.nav_cell({**config, "variant": variant}, seed=seed,
-                                      episode_s=episode_s)
-                r.update(cell=name, variant=variant, seconds=round(time.perf_counter() - t0, 1))
-                rows.append(r)
-                progress(f"cell {variant:7s} {name:9s} seed {seed}: detector "
-                         f"{r['detector_hit_rate']:.2f}, events {r['event_edge_coverage']:.2f} "
-                         f"(ideal pixel {r['event_edge_coverage_ideal']:.2f}, noise alone "
-                         f"{r['event_background_coverage']:.2f}), "
-                         f"lost {r['target_lost_fraction']:.2f}, expert "
-                         f"{r['expert_paper_rate']:.2f}, exposure "
-                         f"{r['exposure_s_median'] * 1e3:.2f} ms at {r['gain_db_median']:.1f} dB")
+    for task, variant, name, config in jobs:
+        for seed in seeds:
+            t0 = time.perf_counter()
+            r = validate.sensor_cell(task, config, seed=seed, episode_s=episode_s)
+            r.update(cell=name, variant=variant, seconds=round(time.perf_counter() - t0, 1))
+            rows.append(r)
+            progress(f"cell {variant:7s} {name:11s} seed {seed}: detector "
+                     f"{r['detector_hit_rate']:.2f}, events {r['event_edge_coverage']:.2f} "
+                     f"(ideal pixel {r['event_edge_coverage_ideal']:.2f}, noise alone "
+                     f"{r['event_background_coverage']:.2f}), "
+                     f"lost {r['target_lost_fraction']:.2f}, expert "
+                     f"{r['expert_reference']:.2f}, exposure "
+                     f"{r['exposure_s_median'] * 1e3:.2f} ms at {r['gain_db_median']:.1f} dB")
     return rows
 
 
 def cell_means(rows: list[dict]) -> list[dict]:
     keys = ("detector_hit_rate", "event_edge_coverage", "event_edge_coverage_ideal",
             "event_background_coverage",
-            "target_lost_fraction", "expert_paper_rate")
+            "target_lost_fraction", "expert_reference")
     groups: dict = {}
     for r in rows:
         groups.setdefault((r["variant"], r["cell"]), []).append(r)
-    return [{"variant": v, "cell": c, "seeds": len(g),
-             **{k: round(statistics.fmean(x[k] for x in g), 4) for k in keys}}
-            for (v, c), g in groups.items()]
+    # a seed whose episode never showed the target long enough has no scores (NaN)
+    out = []
+    for (v, c), g in groups.items():
+        scored = [x for x in g if x["scored_ticks"] > 0]
+        out.append({"variant": v, "cell": c, "seeds": len(scored),
+                    **{k: round(statistics.fmean(x[k] for x in scored), 4) if scored
+                       else float("nan") for k in keys}})
+    return out
 
 
 def plot(out: dict, path: str) -> None:
@@ -101,6 +114,7 @@ def plot(out: dict, path: str) -> None:
               title=f"radiance render, one image: {out['dynamic_range_db']:.0f} dB")
     means = out["cell_means"]
     labels = [f"{m['variant'][:3]} {m['cell']}" for m in means]
+    ax[2].tick_params(axis="x", labelsize=7)
     x = range(len(means))
     ax[2].bar([i - 0.27 for i in x], [m["detector_hit_rate"] for m in means], 0.27,
               label="detector on modelled frames")
@@ -121,7 +135,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true",
-                    help="indoor cells only, one seed, 4 s episodes (under two minutes)")
+                    help="indoor nav and arm cells, one seed, 4 s episodes (under two minutes)")
     ap.add_argument("--seeds", type=int, default=0, help="seeds per cell (default 1 quick, 3)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--plot", metavar="FILE", help="SNR curve, radiance decode, cells (PNG)")
@@ -151,7 +165,7 @@ def main() -> int:
     progress(f"step 1e4:1: {json.dumps({k: step[k] for k in ('dim', 'bright')})}")
     rows = run_cells(variants, seeds, episode_s, progress)
     means = cell_means(rows)
-    hdr = [m for m in means if m["cell"] == "hdr"]
+    hdr = [m for m in means if m["cell"] == "hdr" and m["variant"] != "arm"]
     out = {
         "dynamic_range_db": round(radiance["dynamic_range_db"], 2),
         "ptc_gain_error": round(max(p["gain_error"] for p in ptc), 5),

@@ -307,37 +307,46 @@ def _above_noise(coverage: list[tuple[float, float]]) -> float:
                           for e, b in coverage]))
 
 
-def nav_cell(config: dict, seed: int = 0, episode_s: float = 6.0, control_hz: float = 10.0,
-             dvs_hz: float = 100.0, physics_hz: float = 1000.0, size: int = 160,
-             frame_camera: str = "mv_global_shutter", event_preset: str = "physical",
-             frame_rate_hz: float | None = None) -> dict:
-    """One nav episode under `config` (scene keys: variant, lighting, target_speed, ...),
-    driven by the expert on the ideal render (its privileged view), seen by both modelled
-    sensors. Per control tick: does the colour detector find the target in the modelled
-    frame (centroid inside the true bbox, 2 px margin); what share of the target's
-    pixels the frame lost (top code, or SNR < 1 at their luminance); what share of the
-    target's edge pixels the event sensor fired on (3 x 3 neighbourhood) in the tick's
-    window beyond what noise alone covers on flat background ((edge - bg) / (1 - bg);
-    raw and background beside it), and the same for the ideal pixel (preset "clean": no mismatch, no filter, no
-    noise) on the same light, the most the scene's motion gives any sensor. Frames of the first second (auto exposure settling) are not scored. The
-    camera streams at `frame_rate_hz` (its exposure cap); the ticks take its latest."""
+def sensor_cell(task: str, config: dict, seed: int = 0, episode_s: float = 6.0,
+                control_hz: float = 10.0, dvs_hz: float = 100.0, physics_hz: float = 1000.0,
+                size: int = 160, frame_camera: str = "mv_global_shutter",
+                event_preset: str = "physical", frame_rate_hz: float | None = None) -> dict:
+    """One episode of `task` ("nav" or "arm") under scene `config`, seen by both modelled
+    sensors. Nav is driven by its expert on the ideal render (the expert's privileged
+    view); the arm holds its home pose over the belt, as it does until its grasp, so
+    its wrist camera watches the cubes pass.
+
+    Per control tick, on the target's pixels (segmentation; nav: the cube, arm: the
+    target cube of the truth): does the colour detector (tuned to the target's colour)
+    find it in the modelled frame (centroid inside the target's box, 2 px margin); what
+    share of its pixels the frame lost (top code, or SNR < 1 at their luminance); what
+    share of its edge pixels the event sensor fired on (3 x 3 neighbourhood) in the
+    tick's window beyond what noise alone covers on flat background ((edge - bg) /
+    (1 - bg); raw and background beside it), and the same for the ideal pixel (preset
+    clean, the same log range) on the same light: the most the scene's motion gives any
+    sensor. Ticks of the first second (auto exposure settling) and ticks where the
+    target shows fewer than 9 pixels are not scored. The camera runs at
+    `frame_rate_hz` (default the control rate, as the camera actor), its exposure capped
+    at one frame period."""
     from ..experts.detector import ColorDetector
     from ..experts.nav import NavExpert, NavExpertConfig
     from ..metrics import nav_episode_metrics
     from ..sim import make_scene
 
+    if task not in ("nav", "arm"):
+        raise ValueError(f"sensor_cell: task must be nav or arm, got {task!r}")
     cfg = {"width": size, "height": size, **config, "timestep": 1.0 / physics_hz,
            "integrator": "discrete"}
-    scene = make_scene("nav", **cfg)
+    scene = make_scene(task, **cfg)
     model = scene.compile()
     data = mujoco.MjData(model)
     scene.reset(model, data, np.random.default_rng(seed))
-    target_geom = model.geom("target").id
-    expert, detector = NavExpert(NavExpertConfig()), ColorDetector()
-    expert.reset()
+    cam_name = scene.cameras[0]
+    expert = NavExpert(NavExpertConfig()) if task == "nav" else None
+    if expert is not None:
+        expert.reset()
     chip = dvs_preset(event_preset, downsample=1.0, seed=seed)
     emulator = EventEmulator(chip)
-    # the ideal pixel on the same light and log range: what the scene's motion allows
     reference = EventEmulator(dvs_preset("clean", downsample=1.0, seed=seed,
                                          reference_cd_m2=chip.reference_cd_m2))
     params = camera_preset(frame_camera)
@@ -346,8 +355,8 @@ def nav_cell(config: dict, seed: int = 0, episode_s: float = 6.0, control_hz: fl
     n_steps = int(round(episode_s * physics_hz))
     history = StateHistory(params.exposure_max_s + params.readout_s + 0.05)
     ideal = np.empty((size, size, 3), np.uint8)
-    hits, lost, coverage, truths, exposures = [], [], [], [], []
-    coverage_ideal = []
+    hits, lost, coverage, coverage_ideal, truths, exposures = [], [], [], [], [], []
+    expert_hits = []
     window: list[np.ndarray] = []
     window_ideal: list[np.ndarray] = []
 
@@ -355,81 +364,105 @@ def nav_cell(config: dict, seed: int = 0, episode_s: float = 6.0, control_hz: fl
         scene.set_state(model, data, state)
         scene.kinematics(model, data)
 
+    def target_of(truth) -> tuple[int, tuple]:
+        """(geom id, colour) of the target, or (-1, ()) when there is none."""
+        if task == "nav":
+            return model.geom("target").id, tuple(model.geom_rgba[model.geom("target").id, :3])
+        k = truth["target"]
+        return (int(scene.cube_geom[k]), tuple(truth["cubes"][k]["rgb"])) if k >= 0 else (-1, ())
+
+    def found(det, mask) -> bool:
+        if det is None:
+            return False
+        rows, cols = np.nonzero(mask)
+        return bool(cols.min() - 2 <= det.centroid[0] <= cols.max() + 3
+                    and rows.min() - 2 <= det.centroid[1] <= rows.max() + 3)
+
+    command = scene.idle_command()
     with FrameRenderer(model, size, size) as colour:
         rig = SensorRig(colour, scene.photometry(), params, frame_rate_hz or control_hz)
         rig.new_episode(seed)
         try:
             for step in range(n_steps + 1):
-                if step % steps_render:
-                    scene.scripted(model, data)
-                    mujoco.mj_step(model, data)
-                    continue
-                t = data.time
-                state = scene.state(data)
-                history.add(t, state)
-                scene.kinematics(model, data)
-                lum = rig.luminance(data, "front", getattr(scene, "light_scale", 1.0))
+                if step % steps_render == 0:
+                    t = data.time
+                    state = scene.state(data)
+                    history.add(t, state)
+                    scene.kinematics(model, data)
+                    lum = rig.luminance(data, cam_name, getattr(scene, "light_scale", 1.0))
+                    window.append(emulator.step_luminance(lum, round(t * 1e9)))
+                    window_ideal.append(reference.step_luminance(lum, round(t * 1e9)))
                 if step % steps_control == 0:
                     flat = ~cv2.dilate(_edges(lum, 0.05).astype(np.uint8),
                                        np.ones((9, 9), np.uint8)).astype(bool)
-                window.append(emulator.step_luminance(lum, round(t * 1e9)))
-                window_ideal.append(reference.step_luminance(lum, round(t * 1e9)))
-                if step % steps_control == 0:
                     truth = scene.truth(model, data)
-                    colour.update(data, "front")
+                    colour.update(data, cam_name)
                     colour.rgb(ideal)
                     seg = colour.segmentation()
-                    cmd = expert.act(detector.detect(ideal), (size, size), 1.0 / control_hz)
-                    target = seg[..., 0] == target_geom
-                    scored = t >= 1.0 and truth["visible"] and target.sum() >= 9
+                    geom, rgb = target_of(truth)
+                    target = (seg[..., 0] == geom) & (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+                    detector = ColorDetector(rgb=rgb) if geom >= 0 else None
+                    if expert is not None:
+                        command = expert.act(detector.detect(ideal), (size, size),
+                                             1.0 / control_hz)
+                    scored = t >= 1.0 and geom >= 0 and target.sum() >= 9
                     if scored:
                         edges = mask_edges(target)
-                        # background: static surfaces far from the target (the robot turns,
-                        # so "static" is the image's edge-free flat areas)
                         background = ~cv2.dilate(target.astype(np.uint8),
-                                                 np.ones((15, 15), np.uint8)).astype(bool) \
-                            & flat
+                                                 np.ones((15, 15), np.uint8)).astype(bool) & flat
                         coverage.append(edge_coverage(window, edges, background))
-                        coverage_ideal.append(edge_coverage(window_ideal, edges,
-                                                            background)[0])
+                        coverage_ideal.append(edge_coverage(window_ideal, edges, background))
                     window, window_ideal = [], []
-                    frame = rig.frame(history, pose, data, "front", t - rig.readout_s,
+                    frame = rig.frame(history, pose, data, cam_name, t - rig.readout_s,
                                       lambda s: float(s["light"][0]) if "light" in s else 1.0)
                     pose(state)
                     if scored:
-                        det = detector.detect(frame.image)
-                        u0, v0, u1, v1 = truth["bbox"]
-                        hits.append(det is not None and u0 - 2 <= det.centroid[0] <= u1 + 2
-                                    and v0 - 2 <= det.centroid[1] <= v1 + 2)
+                        hits.append(found(detector.detect(frame.image), target))
+                        expert_hits.append(found(detector.detect(ideal), target))
                         snr = rig.camera.snr(rig.mean_luminance, frame.exposure_s,
                                              frame.gain_db)
                         bad = (frame.raw >= params.max_dn).any(axis=-1) | (snr < 1.0)
                         lost.append(float(bad[target].mean()))
                         exposures.append((frame.exposure_s, frame.gain_db))
                     truths.append(truth)
-                    scene.apply_command(model, data, cmd)
-                scene.scripted(model, data)
-                mujoco.mj_step(model, data)
+                    scene.apply_command(model, data, command)
+                if step < n_steps:
+                    scene.scripted(model, data)
+                    mujoco.mj_step(model, data)
         finally:
             rig.close()
-    cents = np.array([t["centroid"] for t in truths], np.float64)
-    widths = np.array([t["bbox"][2] - t["bbox"][0] for t in truths], np.float64)
-    vis = np.array([t["visible"] for t in truths], bool)
-    metrics = nav_episode_metrics(cents, widths, vis, (size, size),
-                                  len(truths) / control_hz).as_dict()
+    expert_rate = float(np.mean(expert_hits)) if expert_hits else float("nan")
+    if task == "nav":
+        cents = np.array([t["centroid"] for t in truths], np.float64)
+        widths = np.array([t["bbox"][2] - t["bbox"][0] for t in truths], np.float64)
+        vis = np.array([t["visible"] for t in truths], bool)
+        expert_rate = nav_episode_metrics(cents, widths, vis, (size, size),
+                                          len(truths) / control_hz).as_dict()["success"]
     exp = np.array(exposures) if exposures else np.zeros((0, 2))
-    return {"config": config, "seed": seed, "scored_ticks": len(hits),
-            "detector_hit_rate": float(np.mean(hits)) if hits else float("nan"),
-            "target_lost_fraction": float(np.mean(lost)) if lost else float("nan"),
+    photometry = scene.photometry()
+
+    def mean(xs):
+        return float(np.mean(xs)) if xs else float("nan")
+    return {"task": task, "config": config, "seed": seed, "scored_ticks": len(hits),
+            "detector_hit_rate": mean(hits),
+            "target_lost_fraction": mean(lost),
             "event_edge_coverage": _above_noise(coverage),
-            "event_edge_coverage_raw": float(np.mean([c[0] for c in coverage])) if coverage
-            else float("nan"),
-            "event_background_coverage": float(np.mean([c[1] for c in coverage]))
-            if coverage else float("nan"),
-            "event_edge_coverage_ideal": float(np.mean(coverage_ideal)) if coverage_ideal
-            else float("nan"),
-            "expert_paper_rate": metrics["success"],
+            "event_edge_coverage_raw": mean([c[0] for c in coverage]),
+            "event_background_coverage": mean([c[1] for c in coverage]),
+            "event_edge_coverage_ideal": _above_noise(coverage_ideal),
+            # nav: the expert's paper rate; arm (home pose): the detector on the ideal view
+            "expert_reference": expert_rate,
             "exposure_s_median": float(np.median(exp[:, 0])) if len(exp) else float("nan"),
             "gain_db_median": float(np.median(exp[:, 1])) if len(exp) else float("nan"),
-            "photometry": {"illuminance_lux": scene.photometry().illuminance_lux,
-                           "peak_cd_m2": scene.photometry().peak_cd_m2()}}
+            "photometry": {"illuminance_lux": photometry.illuminance_lux,
+                           "peak_cd_m2": photometry.peak_cd_m2()}}
+
+
+def nav_cell(config: dict, **kw) -> dict:
+    """sensor_cell for the nav scene."""
+    return sensor_cell("nav", config, **kw)
+
+
+def arm_cell(config: dict, **kw) -> dict:
+    """sensor_cell for the arm scene."""
+    return sensor_cell("arm", config, **kw)
