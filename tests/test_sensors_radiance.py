@@ -9,7 +9,6 @@ from sebvs.sim.render import FrameRenderer  # sets MUJOCO_GL before mujoco is im
 
 import mujoco  # noqa: E402
 
-from actors.camera import Camera  # noqa: E402
 from sebvs.dvs.emulator import EventEmulator  # noqa: E402
 from sebvs.dvs.params import preset as dvs_preset  # noqa: E402
 from sebvs.sensors import validate  # noqa: E402

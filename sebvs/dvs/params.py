@@ -78,12 +78,18 @@ PRESETS: dict[str, EmulatorParams] = {
 }
 
 
-def preset(name: str, **overrides) -> EmulatorParams:
-    """A preset with some fields overridden; ValueError on an unknown name or key."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown emulator preset {name!r} (one of {', '.join(PRESETS)})")
-    known = {f.name for f in fields(EmulatorParams)}
+def pick_preset(presets: dict, what: str, name: str, overrides: dict):
+    """presets[name] with some fields overridden, validated; ValueError naming `what` on
+    an unknown name or key (any frozen dataclass of parameters with a validate())."""
+    if name not in presets:
+        raise ValueError(f"unknown {what} preset {name!r} (one of {', '.join(presets)})")
+    known = {f.name for f in fields(next(iter(presets.values())))}
     unknown = sorted(set(overrides) - known)
     if unknown:
-        raise ValueError(f"unknown emulator parameter {unknown[0]!r}")
-    return replace(PRESETS[name], **overrides).validate()
+        raise ValueError(f"unknown {what} parameter {unknown[0]!r}")
+    return replace(presets[name], **overrides).validate()
+
+
+def preset(name: str, **overrides) -> EmulatorParams:
+    """A preset with some fields overridden; ValueError on an unknown name or key."""
+    return pick_preset(PRESETS, "emulator", name, overrides)

@@ -76,9 +76,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
+
+from ..dvs.params import pick_preset
 
 _PLANCK_J_S = 6.62607015e-34
 _LIGHT_SPEED_M_S = 299_792_458.0
@@ -217,13 +219,7 @@ PRESETS: dict[str, FrameCameraParams] = {
 
 def preset(name: str, **overrides) -> FrameCameraParams:
     """A preset with some fields overridden; ValueError on an unknown name or key."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown frame camera preset {name!r} (one of {', '.join(PRESETS)})")
-    known = {f.name for f in fields(FrameCameraParams)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown frame camera parameter {unknown[0]!r}")
-    return replace(PRESETS[name], **overrides).validate()
+    return pick_preset(PRESETS, "frame camera", name, overrides)
 
 
 def electrons_per_s_per_cd_m2(params: FrameCameraParams) -> float:
