@@ -205,9 +205,10 @@ def test_physical_conditions_are_separate_from_the_benchmark_and_named():
                                     "fast_flicker"]
     assert list(ARM_CONDITIONS) == ["nominal", "moving", "fast", "low_light", "flicker",
                                     "blur"]
-    assert set(NAV_PHYSICAL_CONDITIONS) == {"hdr", "dusk", "dusk_fast", "flicker_100",
-                                            "flicker_120", "fast_hdr"}
-    assert set(ARM_PHYSICAL_CONDITIONS) == {"hdr", "dusk_moving", "fast_hdr"}
+    assert set(NAV_PHYSICAL_CONDITIONS) == {"nominal_physical", "hdr", "dusk", "dusk_fast",
+                                            "flicker_100", "flicker_120", "fast_hdr"}
+    assert set(ARM_PHYSICAL_CONDITIONS) == {"nominal_physical", "fast_physical", "hdr",
+                                            "dusk_moving", "fast_hdr"}
     assert conditions_of("all", "nav") == list(NAV_CONDITIONS)
     assert conditions_of("physical", "nav") == list(NAV_PHYSICAL_CONDITIONS)
     assert conditions_of("physical", "arm") == list(ARM_PHYSICAL_CONDITIONS)

@@ -76,6 +76,8 @@ PHYSICAL = 'camera.sensor="physical"'
 # mains flicker (twice the supply frequency) needs the renders at >= 1 kHz, else it aliases
 MAINS_RATES = ["sim.render_hz=1000.0", "camera.dvs_hz=1000.0"]
 NAV_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
+    # the office (400 lux indoors, an overcast day outdoors): the physical sensors' baseline
+    "nominal_physical": [PHYSICAL],
     # a backlit scene: windows (indoor) or the sky (outdoor) at 1e4 cd/m^2, target in shade
     "hdr": ['sim.config.lighting="hdr"', PHYSICAL],
     "dusk": ['sim.config.lighting="dusk"', PHYSICAL],                  # 3 lux
@@ -87,6 +89,8 @@ NAV_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
     "fast_hdr": ['sim.config.lighting="hdr"', 'sim.config.target_speed="fast"', PHYSICAL],
 }
 ARM_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
+    "nominal_physical": [PHYSICAL],                                     # 500 lux, static
+    "fast_physical": ['sim.config.conveyor="moving"', "sim.config.belt_speed=0.25", PHYSICAL],
     "hdr": ['sim.config.lighting="hdr"', PHYSICAL],                    # lamp beside the belt
     "dusk_moving": ['sim.config.lighting="dusk"', 'sim.config.conveyor="moving"',
                     "sim.config.belt_speed=0.08", PHYSICAL],
