@@ -8,7 +8,8 @@ Output  events  {"events": EVENT_DTYPE [N]} (x, y, t ns, p), time-sorted, emitte
 A new episode (meta `episode` changes) restarts the stream: the scene jumps, and a jump
 is not a brightness change the sensor would see. A frame the emulator refuses (ValueError:
 a bad timestamp or array) is counted in bad_frames and dropped; the stream goes on. A gap
-over the emulator's max_gap_s restarts the sensor and is counted in gap_restarts.
+over the emulator's max_gap_s, forward or back, restarts the sensor and is counted in
+gap_restarts (one corrupt far-future timestamp costs one restart, not the episode).
 """
 from __future__ import annotations
 
@@ -68,8 +69,8 @@ class Emulator(Actor):
             return
         if self.emulator.gap_restarts > restarts:
             self.gap_restarts += 1
-            self.log.warning("tick %s: %.3g s since the previous frame, over max_gap_s; "
-                             "the sensor restarts from this frame", msg.tick,
+            self.log.warning("tick %s: %.3g s from the previous frame, beyond max_gap_s "
+                             "either way; the sensor restarts from this frame", msg.tick,
                              (self.emulator.t_ns - prev_t) * 1e-9)
         h, w = self.emulator.shape
         luma = msg.arrays["luma"]

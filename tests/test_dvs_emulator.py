@@ -319,3 +319,17 @@ def test_gap_params_are_validated():
     with pytest.raises(ValueError, match="leak events per pixel"):
         EmulatorParams(leak_rate_hz=0.1, max_gap_s=1e6).validate()
     EmulatorParams(leak_rate_hz=0.1, max_gap_s=MAX_LEAK_EVENTS / 0.1).validate()
+
+
+def test_a_jump_far_forward_and_back_restarts_instead_of_refusing_for_good():
+    """One corrupt far-future timestamp used to leave every later frame 'back in time'
+    until the next episode: a jump back beyond max_gap_s is a new stream."""
+    emu = emulator()
+    emu.step(flat(100), 0)
+    emu.step(flat(110), 10_000_000)
+    assert emu.step(flat(120), 10 ** 18).size == 0 and emu.gap_restarts == 1   # far future
+    assert emu.step(flat(130), 20_000_000).size == 0 and emu.gap_restarts == 2  # and back
+    ev = emu.step(flat(200), 30_000_000)                 # the stream goes on from there
+    assert ev.size > 0 and ev["t"].min() > 20_000_000
+    with pytest.raises(ValueError, match="back in time"):
+        emu.step(flat(200), 29_000_000)                  # a small step back: still refused

@@ -12,8 +12,9 @@ Per pixel, for 8-bit luma x (DN):
     shot noise: events at rate shot_noise_rate_hz, lower at bright pixels
     refractory: events of a pixel closer than refractory_period_s to its previous one are
           dropped (the memorised level still follows the crossings)
-    gaps: frames further apart than max_gap_s restart the sensor (state from the new frame,
-          no events for the gap), so leak and shot noise never run over an unobserved
+    gaps: frames further apart than max_gap_s, forward or back, restart the sensor (state
+          from the new frame, no events for the gap; a jump back is a new stream, e.g.
+          after one corrupt far-future timestamp), so leak and shot noise never run over an unobserved
           stretch: per pixel and call at most leak_rate * max_gap_s leak events, one shot
           noise event, and the lin-log range over the threshold of crossings
 
@@ -101,8 +102,9 @@ class EventEmulator:
     """Frames in (uint8 RGB or luma, int ns timestamps), events out (EVENT_DTYPE, sorted by t).
 
     The first frame initialises the state and emits nothing. A bad frame raises ValueError
-    and leaves the state as it was. A frame more than ``max_gap_s`` after the previous one
-    restarts the sensor: nothing is emitted for the gap, and ``gap_restarts`` counts it.
+    and leaves the state as it was. A frame more than ``max_gap_s`` after (or before) the
+    previous one restarts the sensor: nothing is emitted for the gap, and ``gap_restarts``
+    counts it; a smaller step back in time is refused.
     """
 
     def __init__(self, params: EmulatorParams | None = None):
@@ -159,7 +161,10 @@ class EventEmulator:
         if not 0 <= t_ns <= T_MAX:
             raise ValueError(f"timestamp {t_ns} ns is outside [0, 2**63 - 1] "
                              "(int64 nanoseconds)")
-        if self.t_ns is not None and t_ns < self.t_ns:
+        # a jump back by more than max_gap_s is a new stream (the previous timestamp was
+        # corrupt, or the source restarted) and restarts the sensor; a small step back is
+        # out of order and refused
+        if self.t_ns is not None and 0 <= self.t_ns - t_ns - 1 < self._max_gap_ns:
             raise ValueError(f"timestamp {t_ns} ns goes back in time (previous {self.t_ns} ns)")
         return np.ascontiguousarray(frame), t_ns
 
@@ -221,7 +226,7 @@ class EventEmulator:
         self.frames += 1
         if dt_ns == 0:
             return empty_events()   # a repeated sample carries no new information
-        if dt_ns > self._max_gap_ns:
+        if dt_ns > self._max_gap_ns or dt_ns < 0:
             # Nobody observed the sensor over the gap: leak and shot noise integrated over it
             # would be G * rate events per pixel (25 M on 16 x 16 for 1e6 s), all invented,
             # and the brightness cannot be interpolated across it. Treat it as a restart.
