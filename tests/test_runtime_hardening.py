@@ -339,3 +339,117 @@ def test_max_bytes_is_validated_with_the_topology(tmp_path):
                                 sink_input='{ from = "source/frames", max_bytes = 10 }')
     with pytest.raises(TopologyError, match="max_bytes"):
         load_topology(topo)
+
+
+def test_a_ring_that_does_not_fit_shm_fails_at_creation_naming_the_budget(monkeypatch):
+    """A full /dev/shm used to kill the writer with SIGBUS at its first write past the
+    free pages; every page is now allocated when the ring is made, and a refusal there
+    names the sizes and leaves no file behind."""
+    import errno
+    import os
+
+    def no_space(fd, offset, length):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    prefix = f"sebvs-test-full-{os.getpid()}"
+    monkeypatch.setattr(shm.os, "posix_fallocate", no_space)
+    ring = shm.RingWriter(prefix, 4)
+    with pytest.raises(shm.ShmFull, match=r"needs [\d,]+ bytes .* bytes free of"):
+        ring.reserve(1 << 20)
+    assert not [p for p in os.listdir("/dev/shm") if p.startswith(prefix)]
+    monkeypatch.undo()
+    slot, view = ring.reserve(1 << 20)          # with room, the same ring works
+    view[:4] = b"abcd"
+    ring.commit(slot)
+    ring.close()
+    assert not [p for p in os.listdir("/dev/shm") if p.startswith(prefix)]
+
+
+def test_ring_pages_are_allocated_up_front():
+    import os
+    ring = shm.RingWriter(f"sebvs-test-alloc-{os.getpid()}", 2, 1 << 20)
+    try:
+        st = os.stat(shm.SHM_DIR / ring.name)
+        assert st.st_blocks * 512 >= st.st_size      # not a sparse file
+    finally:
+        ring.close()
+
+
+async def _oversize_then_more(max_bytes: int):
+    """Small messages, one over max_bytes, small ones again: what the input receives."""
+    with tempfile.TemporaryDirectory(prefix="sebvs-hard-") as tmp:
+        endpoint = f"ipc://{tmp}/frames"
+        ctx = zmq.Context()
+        pub = ctx.socket(zmq.XPUB)
+        pub.bind(endpoint)
+        actor = _Sink(set())
+        inputs = Inputs()
+        inputs.connect({"frames": {"endpoint": endpoint, "topic": "src/frames", "queue": 100,
+                                   "hwm": 100, "max_bytes": max_bytes}}, ctx, actor, RUN)
+        assert pub.poll(5000), "the input never subscribed"
+        pub.recv()
+        inputs.start()
+        inp = inputs.ports["frames"]
+        loop = asyncio.get_running_loop()
+
+        async def until(cond, what):
+            deadline = loop.time() + 10
+            while not cond():
+                assert loop.time() < deadline, f"{what}: {vars(inp.stats)}"
+                await asyncio.sleep(0.01)
+
+        topic = b"src/frames"
+        for k in range(3):
+            pub.send_multipart([topic, header(seq=k)])
+        await until(lambda: inp.stats.received == 3, "before")
+        pub.send_multipart([topic, header(seq=3), b"x" * (2 * max_bytes)])   # too big
+        await until(lambda: inp.stats.oversize == 1, "the drop was not seen")
+        # the subscription comes back with the new connection: send until it is there
+        deadline = loop.time() + 10
+        seq = 4
+        while inp.stats.received < 4:
+            assert loop.time() < deadline, f"never reconnected: {vars(inp.stats)}"
+            pub.send_multipart([topic, header(seq=seq)])
+            seq += 1
+            await asyncio.sleep(0.02)
+        base = inp.stats.received
+        for k in range(3):
+            pub.send_multipart([topic, header(seq=seq + k)])
+        await until(lambda: inp.stats.received == base + 3, "after")
+        stats = inputs.stats()["frames"]
+        inputs.stop_reading()
+        inputs.close()
+        pub.close(linger=0)
+        ctx.term()
+        return stats
+
+
+def test_one_oversized_frame_costs_that_frame_not_the_input():
+    """ZeroMQ drops a peer that sends more than MAXMSGSIZE and does not reconnect: the
+    input then received nothing for the rest of the run, and said nothing."""
+    stats = asyncio.run(_oversize_then_more(4096))
+    assert stats["oversize"] == 1
+    assert stats["received"] >= 7 and stats["malformed"] == 0
+
+
+def test_a_producer_that_goes_away_is_not_counted_as_oversize():
+    async def scenario():
+        with tempfile.TemporaryDirectory(prefix="sebvs-hard-") as tmp:
+            endpoint = f"ipc://{tmp}/frames"
+            ctx = zmq.Context()
+            pub = ctx.socket(zmq.XPUB)
+            pub.bind(endpoint)
+            inputs = Inputs()
+            inputs.connect({"frames": {"endpoint": endpoint, "topic": "src/frames",
+                                       "queue": 100, "hwm": 100}}, ctx, _Sink(set()), RUN)
+            assert pub.poll(5000)
+            inputs.start()
+            await asyncio.sleep(0.05)
+            pub.close(linger=0)                       # the producer exits
+            await asyncio.sleep(0.6)                  # beyond RETRY_WAIT_S: ZeroMQ retries
+            stats = inputs.stats()["frames"]
+            inputs.stop_reading()
+            inputs.close()
+            ctx.term()
+            return stats
+    assert asyncio.run(scenario())["oversize"] == 0

@@ -4,7 +4,10 @@ and handed to the actor's handler.
 No message can stop an input: one that does not decode is counted in `malformed` (and
 per kind in `malformed_kinds`), one whose handler raises in `errors` (per exception type
 in `error_kinds`); each kind is logged the first time and then rarely, and the input reads
-on. Per-input state is bounded: only the producer's own topic is accepted, and the
+on. A message over the input's `max_bytes` (ZeroMQ's MAXMSGSIZE) makes ZeroMQ drop the
+connection and never reconnect it; a monitor on each input's socket sees a drop that no
+retry follows, counts it in `oversize`, logs it with the limit, and connects again, so
+one oversized frame costs that frame, not the input. Per-input state is bounded: only the producer's own topic is accepted, and the
 sequence bookkeeping is one number.
 """
 from __future__ import annotations
@@ -36,6 +39,9 @@ MAX_MESSAGE_BYTES = 256 << 20
 # forged or corrupt seq: counted apart, so `dropped_gap` stays a count of lost messages
 MAX_SEQ_GAP = 1 << 20
 MAX_KINDS = 32                   # distinct exception types counted by name per input
+# ZeroMQ retries a lost connection after RECONNECT_IVL (10 ms here); a disconnection no
+# retry follows within this long was a refused (oversized) message
+RETRY_WAIT_S = 0.25
 
 log = logging.getLogger("sebvs.node")
 
@@ -52,6 +58,8 @@ class InputStats:
     errors: int = 0               # the handler raised
     seq_resets: int = 0           # seq went back: the producer restarted
     seq_jumps: int = 0            # seq leapt further than any queue could lose (MAX_SEQ_GAP)
+    oversize: int = 0             # ZeroMQ dropped the peer for a message over max_bytes
+                                  # (and would not reconnect): reconnected each time
     malformed_kinds: dict = field(default_factory=dict)   # WireError kind -> count
     error_kinds: dict = field(default_factory=dict)       # exception type -> count
 
@@ -63,6 +71,11 @@ class _Input:
     socket: Any
     latest: bool
     topic: bytes = b""             # the one topic this input reads (its producer's output)
+    endpoint: str = ""
+    max_bytes: int = 0
+    monitor: Any = None            # the socket's monitor: disconnections and retries
+    disconnects: int = 0
+    retried: int = 0               # the disconnection count when ZeroMQ last retried
     stats: InputStats = field(default_factory=InputStats)
     busy: asyncio.Task | None = None   # a handler that suspended and runs on as a task
     last_seq: int | None = None
@@ -132,12 +145,17 @@ class Inputs:
             sock.setsockopt(zmq.RCVHWM, i["hwm"])
             sock.setsockopt(zmq.LINGER, 0)
             sock.setsockopt(zmq.RECONNECT_IVL, 10)
-            sock.setsockopt(zmq.MAXMSGSIZE, i.get("max_bytes") or MAX_MESSAGE_BYTES)
+            max_bytes = i.get("max_bytes") or MAX_MESSAGE_BYTES
+            sock.setsockopt(zmq.MAXMSGSIZE, max_bytes)
             sock.setsockopt(zmq.SUBSCRIBE, i["topic"].encode())
+            monitor = sock.get_monitor_socket(
+                zmq.EVENT_DISCONNECTED | zmq.EVENT_CONNECT_RETRIED | zmq.EVENT_CONNECTED
+                | zmq.EVENT_CONNECT_DELAYED)
             sock.connect(i["endpoint"])
             handler = getattr(actor, f"on_{inp}")
             self.ports[inp] = _Input(inp, handler, sock, i["queue"] == "latest",
-                                     topic=i["topic"].encode())
+                                     topic=i["topic"].encode(), endpoint=i["endpoint"],
+                                     max_bytes=max_bytes, monitor=monitor)
 
     def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -145,6 +163,47 @@ class Inputs:
         for inp in self.ports.values():
             loop.add_reader(inp.socket.FD, self.drain, inp)
             loop.call_soon(self.drain, inp)  # the FD is edge-triggered: read what is queued
+            if inp.monitor is not None:
+                loop.add_reader(inp.monitor.FD, self.watch, inp)
+                loop.call_soon(self.watch, inp)
+
+    def watch(self, inp: _Input) -> None:
+        """The socket's monitor. A producer that goes away is reconnected by ZeroMQ itself
+        (a connect retry follows the disconnection); a peer dropped for a message over
+        MAXMSGSIZE is not. So a disconnection that no retry follows within
+        RETRY_WAIT_S is counted in `oversize`, logged with the limit, and connected again."""
+        while True:
+            try:
+                frames = inp.monitor.recv_multipart(zmq.NOBLOCK)
+            except (zmq.Again, zmq.ZMQError):         # none queued, or closed at shutdown
+                return
+            if not frames or len(frames[0]) < 2:
+                continue
+            event = int.from_bytes(frames[0][:2], "little")
+            if event == zmq.EVENT_DISCONNECTED:
+                inp.disconnects += 1
+                asyncio.get_running_loop().call_later(RETRY_WAIT_S, self._check_retry, inp,
+                                                      inp.disconnects)
+            else:                                      # a retry, a delay or a connection
+                inp.retried = inp.disconnects
+
+    def _check_retry(self, inp: _Input, disconnects: int) -> None:
+        if inp.retried >= disconnects or inp.disconnects != disconnects \
+                or (self.stopping is not None and self.stopping.is_set()) \
+                or inp.socket.closed:
+            return
+        inp.stats.oversize += 1
+        n = inp.stats.oversize
+        if _worth_logging(n):
+            log.warning("input %r: ZeroMQ dropped the connection to %s and does not retry "
+                        "(%d so far): a message over this input's max_bytes %d (the "
+                        "topology's key) was refused; connecting again", inp.name,
+                        inp.endpoint, n, inp.max_bytes)
+        try:
+            inp.socket.disconnect(inp.endpoint)
+        except zmq.ZMQError:
+            pass                                       # already gone from the socket
+        inp.socket.connect(inp.endpoint)
 
     def drain(self, inp: _Input) -> None:
         """Read and dispatch queued messages straight from the event loop's reader callback.
@@ -336,6 +395,8 @@ class Inputs:
         loop = asyncio.get_running_loop()
         for inp in self.ports.values():
             loop.remove_reader(inp.socket.FD)
+            if inp.monitor is not None:
+                loop.remove_reader(inp.monitor.FD)
 
     async def cancel_handlers(self) -> None:
         """Cancel the handlers that suspended and still run as tasks, and wait for them."""
@@ -348,6 +409,9 @@ class Inputs:
         """Unmap the rings we read and close the sockets."""
         self.reader.close()
         for inp in self.ports.values():
+            if inp.monitor is not None:
+                inp.socket.disable_monitor()
+                inp.monitor.close(linger=0)
             inp.socket.close(linger=0)
 
 

@@ -21,6 +21,10 @@ neither side trusts a name: the producer creates its files exclusively (O_EXCL) 
 name with a random part nobody can create ahead of it, and a reader opens only a plain
 file of its own user, without following links or blocking on a FIFO, whose header
 describes exactly the file's size.
+
+Every page of a ring is allocated when the ring is created (posix_fallocate): a full
+/dev/shm then fails there, with ShmFull naming the sizes, never later as a SIGBUS in the
+middle of a write.
 """
 from __future__ import annotations
 
@@ -52,6 +56,27 @@ def packed_offsets(nbytes: list[int]) -> tuple[list[int], int]:
         offsets.append(pos)
         pos = _round_up(pos + n, ALIGN)
     return offsets, pos
+
+
+class ShmFull(OSError):
+    """A ring does not fit the shared-memory file system: raised when the ring is created,
+    naming the budget, instead of a SIGBUS at the first write past the free pages."""
+
+
+def _reserve_pages(fd: int, size: int, path: Path) -> None:
+    """Allocate every page of the ring now (ftruncate alone leaves a sparse file, and a
+    write to a page tmpfs cannot back kills the writer with SIGBUS)."""
+    try:
+        os.posix_fallocate(fd, 0, size)
+    except OSError as exc:
+        try:
+            st = os.statvfs(path.parent)
+            free = f"{st.f_bavail * st.f_frsize:,} bytes free of {st.f_blocks * st.f_frsize:,}"
+        except OSError:
+            free = "free space unknown"
+        raise ShmFull(exc.errno, f"shared-memory ring {path} needs {size:,} bytes and "
+                      f"{path.parent} has {free} ({exc.strerror}): free space there or "
+                      f"lower the topology's queue / image sizes") from None
 
 
 class RingWriter:
@@ -88,7 +113,12 @@ class RingWriter:
                                   "process created it first; refusing to share it") from None
         try:
             os.ftruncate(fd, size)
+            _reserve_pages(fd, size, SHM_DIR / self.name)
             self._mm = mmap.mmap(fd, size)
+        except BaseException:
+            os.unlink(SHM_DIR / self.name)
+            self.name, self.slot_bytes = "", 0     # no ring: the next reserve tries again
+            raise
         finally:
             os.close(fd)
         head = np.ndarray((3,), np.int64, buffer=self._mm)
