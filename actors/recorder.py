@@ -22,9 +22,17 @@ One row per control tick once every connected stream delivered that tick (see
 sebvs.data.recording.TickJoiner); an episode file per sim episode, finished on its end
 marker, then indexed (sebvs.data.index). After `episodes` finished episodes the recorder
 ends the run. A kill loses at most the episode in progress (its .partial file).
+
+A write that fails (a full disk, a lost mount: any OSError) stops the recording: the
+error is logged in one line naming the dataset and the free space, every finished
+episode stays intact and indexed (the index is written again once the episode in
+progress has made room, if it must), the episode in progress is left as its .partial file
+(what `sebvs data check` lists as lost) and the run ends; `sebvs record` says so.
 """
 from __future__ import annotations
 
+import os
+import shutil
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -33,7 +41,8 @@ from typing import Annotated, Literal
 
 import numpy as np
 
-from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
+from sebvs.data.recording import (WRITE_STOPPED, EpisodeRecorder, SpaceReserve, TickJoiner,
+                                  hop_latencies)
 from sebvs.runtime import Actor, Message, Range
 from sebvs.runtime.topology import TopologyError, apply_override
 
@@ -112,12 +121,15 @@ class Recorder(Actor):
                                    base_attrs=base)
         self.skipped = {"no_tick": 0, "not_control": 0}
         self._warned = 0
+        self.write_error: str | None = None     # set once a write failed: nothing more
+        Path(p.out).mkdir(parents=True, exist_ok=True)
+        self.reserve = SpaceReserve(Path(p.out))
         self.log.info("recording %s into %s (next episode %d)", sorted(self.streams), p.out,
                       self.rec.next_number)
 
     async def run(self) -> None:
         while not self.stopping.is_set():
-            self._finished(self.rec.poll())
+            self._finished(self._write(self.rec.poll))
             if not await self.sleep_until(time.monotonic_ns() + 200_000_000):
                 return
 
@@ -162,7 +174,7 @@ class Recorder(Actor):
                 fields["attrs"] = row["events"]["attrs"]
         if "raw" in row:
             fields["raw_events"] = row["raw"]["raw"]
-        self._finished(self.rec.row(tick, **fields))
+        self._finished(self._write(self.rec.row, tick, **fields))
 
     async def on_rgb(self, msg: Message) -> None:
         if msg.meta.get("control") is False:
@@ -212,9 +224,9 @@ class Recorder(Actor):
         m = msg.meta
         tick = msg.tick if msg.tick is not None else -1
         if m.get("event") == "start":
-            self.rec.start(m, tick)
+            self._write(self.rec.start, m, tick)
         elif m.get("event") == "end":
-            self._finished(self.rec.end(str(m.get("reason", "")), tick))
+            self._finished(self._write(self.rec.end, str(m.get("reason", "")), tick))
 
     # --- episodes --------------------------------------------------------------------
     def _finished(self, entries: list[dict]) -> None:
@@ -225,8 +237,51 @@ class Recorder(Actor):
         if entries and n and len(self.rec.finished) >= n and not self.stopping.is_set():
             self.request_stop(f"{len(self.rec.finished)} episode(s) recorded")
 
+    def _write(self, fn, *args, **kw) -> list:
+        """Run one of the EpisodeRecorder's writes; a failed one stops the recording."""
+        if self.write_error is not None:
+            return []
+        try:
+            return fn(*args, **kw) or []
+        except OSError as exc:
+            self._stop_writing(exc)
+            return []
+
+    def _stop_writing(self, exc: OSError) -> None:
+        out = Path(self.params.out)
+        try:
+            free = f"{shutil.disk_usage(out).free:,} bytes free"
+        except OSError:
+            free = "free space unknown"
+        self.reserve.release()                  # room to close the file and write the index
+        partials = []
+        for ep in list(self.rec.open):          # kept as .partial files, not deleted
+            if ep.writer is not None:
+                ep.writer.abandon()
+                partials.append(ep.writer.partial.name)
+            self.rec.open.remove(ep)
+        try:
+            adopted = self.rec.index.adopt_unindexed()   # one renamed but not indexed
+        except OSError:
+            # no room even for the index: the unfinished episodes give their space back
+            for name in partials:
+                (out / name).unlink(missing_ok=True)
+            partials = [f"{name} (removed to make room for the index)" for name in partials]
+            adopted = self.rec.index.adopt_unindexed()
+        why = os.strerror(exc.errno) if exc.errno else str(exc).splitlines()[0][:200]
+        self.write_error = (
+            f"{WRITE_STOPPED}writing into {out} failed ({why}; {free}); "
+            f"{len(self.rec.index.episodes())} finished episode(s) intact and indexed"
+            + (f" ({len(adopted)} indexed now)" if adopted else "")
+            + (f"; the episode in progress is left as {', '.join(partials)}" if partials
+               else ""))
+        self.log.error("%s", self.write_error)
+        self.telemetry("recording_stopped", error=self.write_error)
+        self.request_stop(self.write_error)
+
     async def teardown(self) -> None:
-        self._finished(self.rec.close())
+        self._finished(self._write(self.rec.close))
+        self.reserve.release()
         j = self.joiner
         self.log.info("recorded %d episode(s), %d frames; ticks incomplete %d (last %s), "
                       "late %d, outside episodes %d; episodes discarded %d",
@@ -243,6 +298,7 @@ class Recorder(Actor):
                 "incomplete_ticks": j.incomplete, "late": j.late, "pending": len(j.pending),
                 "outside_episodes": r.outside, "discarded": r.discarded,
                 "skipped": dict(self.skipped), "out": self.params.out,
+                "write_error": self.write_error,
                 "done": bool(self.params.episodes and len(r.finished) >= self.params.episodes)}
 
 

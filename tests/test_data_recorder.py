@@ -219,3 +219,44 @@ path = "{tmp_path / 'probe'}"
     assert entries[3]["meta"] == {"modality": "rgb"}
     arrays = np.load(tmp_path / "probe.npz")
     np.testing.assert_array_equal(arrays["3.action.action"], expected_action(3))
+
+
+def _small_filesystem(path: Path, size: str) -> bool:
+    """A tmpfs of `size` at `path`, for the test's own full disk; False where this user
+    may not mount one (the test then skips)."""
+    path.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        return False
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                          capture_output=True)
+    return done.returncode == 0
+
+
+def test_a_disk_that_fills_during_record_loses_no_finished_episode(tmp_path, capsys):
+    import pytest
+    mnt = tmp_path / "small"
+    if not _small_filesystem(mnt, "6m"):
+        pytest.skip("cannot mount a small tmpfs here (needs root): the full-disk case")
+    try:
+        out = mnt / "ds"
+        code = main(["record", "topologies/nav_record.toml", "--episodes", "40", "--out",
+                     str(out), "--runs-dir", str(tmp_path / "runs"), "--quiet",
+                     "--set", "sim.episode_s=2.0", "--set", "sim.randomise={}"])
+        err = capsys.readouterr().err
+        assert code == 1
+        stopped = [line for line in err.splitlines() if "recording stopped:" in line]
+        assert len(stopped) == 1 and "No space left on device" in stopped[0], err
+        assert "SIGSEGV" not in err and "died" not in err
+        index = DatasetIndex(out)
+        finished = sorted(p.name for p in out.glob("episode_*.h5"))
+        assert len(finished) >= 2
+        assert sorted(e["file"] for e in index.episodes()) == finished   # all indexed
+        assert f"{len(finished)} finished episode(s) intact and indexed" in stopped[0]
+        partial = list(out.glob("*.partial"))
+        assert len(partial) == 1 and partial[0].name in stopped[0]       # marked
+        assert not (out / ".space_reserve").exists()
+        for name in finished:                       # every finished file reads whole
+            with open_episode(out / name) as ep:
+                assert len(ep) == 21 and ep.attrs["frames"] == 21
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)

@@ -286,6 +286,17 @@ class EpisodeWriter:
                 col[i] = v
             f.create_dataset("modality", data=col)
 
+    def abandon(self) -> None:
+        """Close after a failed write (a full disk), keeping the .partial file as the mark
+        of the lost episode. HDF5 flushes its caches on close and, if that fails too,
+        keeps the file and crashes the process at exit; the caller frees room first
+        (EpisodeRecorder's space reserve), so this close normally succeeds."""
+        self._big.clear()
+        try:
+            self.f.close()
+        except Exception:       # nothing more to save; the handles are gone either way
+            pass
+
     def abort(self) -> None:
         """Drop the episode: close and delete the partial file."""
         try:

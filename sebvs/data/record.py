@@ -162,6 +162,9 @@ def cmd_record(args) -> int:
     wall = time.monotonic() - t0
     if sup.failure:
         print(f"sebvs record: run stopped: {sup.failure.splitlines()[0]}", file=sys.stderr)
+    stopped = write_stop_reason(sup.rundir)
+    if stopped:
+        print(f"sebvs record: {stopped}", file=sys.stderr)
     index = DatasetIndex(out) if (out / "index.json").exists() else None
     new = [e for e in (index.episodes() if index else [])
            if int(e["file"].split("_")[1].split(".")[0]) >= first]
@@ -174,6 +177,21 @@ def cmd_record(args) -> int:
           f"{wall:.1f} s wall; dataset {out} now holds "
           f"{len(index.episodes()) if index else 0} episode(s)")
     return 0 if code == 0 and len(new) >= args.episodes else 1
+
+
+def write_stop_reason(rundir) -> str | None:
+    """The recorder's line when a write failed and it stopped the recording (a full
+    disk), from the run's logs; None when it did not."""
+    from .recording import WRITE_STOPPED
+    for log_file in sorted(Path(rundir, "logs").glob("*.log")) if rundir else ():
+        try:
+            text = log_file.read_text(errors="replace")
+        except OSError:
+            continue
+        at = text.find(WRITE_STOPPED)
+        if at >= 0:
+            return text[at:].splitlines()[0]
+    return None
 
 
 # ------------------------------------------------------------------------- fan-out

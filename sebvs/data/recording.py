@@ -11,6 +11,8 @@ at once instead of waiting for a timeout.
 from __future__ import annotations
 
 import logging
+import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -222,15 +224,17 @@ class EpisodeRecorder:
 
     # --- ending ----------------------------------------------------------------------
     def _finish(self, ep: OpenEpisode) -> dict | None:
-        self.open.remove(ep)
         if ep.writer is None or ep.writer.frames == 0:
-            self._discard(ep, "no rows", removed=True)
+            self._discard(ep, "no rows")
             return None
         frames, sim_s = ep.writer.frames, ep.writer.sim_seconds
         # the entry (hash, attributes) before the rename: a fan-out driver adopts the file
-        # the moment it has its final name (sebvs/data/record.py), and it is gone from here
+        # the moment it has its final name (sebvs/data/record.py), and it is gone from here.
+        # A write that fails here (a full disk) raises with the episode still open, so
+        # whoever handles it can close its file.
         entry = make_entry(ep.writer.close(ep.reason), ep.reason, name=ep.writer.path.name)
         path = ep.writer.publish()
+        self.open.remove(ep)
         self.index.add(entry)            # last: only a complete, renamed file is indexed
         self.finished.append(entry)
         self.frames += frames
@@ -252,6 +256,42 @@ class EpisodeRecorder:
 
 
 TASK_OF_KEY = {key: task for task, (key, _) in TASK_TARGET.items()}
+
+
+class SpaceReserve:
+    """A file of allocated blocks in the dataset's directory, given back when a write
+    fails for lack of space: then HDF5 can flush and close the episode in progress and
+    the index can be written, instead of failing again (and crashing at exit).
+
+    Its size: 10 % of the free space at the start, between 1 and 64 MiB."""
+
+    NAME = ".space_reserve"
+
+    def __init__(self, root: Path) -> None:
+        self.path = Path(root) / self.NAME
+        self.bytes = 0
+        try:
+            free = shutil.disk_usage(root).free
+            size = int(min(64 << 20, max(1 << 20, free // 10)))
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            try:
+                os.posix_fallocate(fd, 0, size)
+            finally:
+                os.close(fd)
+            self.bytes = size
+        except OSError as exc:
+            self.release()
+            log.warning("%s: no space reserve (%s): a full disk may cost the episode in "
+                        "progress its file", root, exc)
+
+    def release(self) -> int:
+        """Give the space back; returns how much was held."""
+        held, self.bytes = self.bytes, 0
+        self.path.unlink(missing_ok=True)
+        return held
+# how the recorder actor's log line begins when a write failed and it stopped the
+# recording (a full disk): `sebvs record` finds it in the run's logs and prints it
+WRITE_STOPPED = "recording stopped: "
 
 
 def hop_latencies(stamps: list, recv_ns: int, me: str) -> dict[str, float]:
