@@ -16,7 +16,8 @@ Top-level keys (issue 34's targets):
                           SNR < 1)                                               (>= 0.30)
   hdr_event_edge_coverage    the same cells: the share of the target's edge pixels the
                           event sensor fired on per 0.1 s, worst cell            (>= 0.80)
-cells: per nav cell (nominal, hdr, dusk, dusk_fast; indoor and outdoor), arm cell
+cells: per nav cell (nominal, hdr, dusk, dusk_fast; indoor and outdoor; without --quick
+  also mains flicker at 100 and 120 Hz indoors, sampled at 1 kHz, one seed), arm cell
   (nominal, moving, hdr, dusk_moving, fast_hdr; the wrist camera at home) and seed:
   detector_hit_rate (the colour detector on the modelled frames), event_edge_coverage
   (and event_edge_coverage_ideal: the ideal pixel on the same light, what the scene's
@@ -46,6 +47,9 @@ from sebvs.sensors.framecam import preset  # noqa: E402
 NAV_CELLS = {"nominal": {"lighting": "nominal"}, "hdr": {"lighting": "hdr"},
              "dusk": {"lighting": "dusk"},
              "dusk_fast": {"lighting": "dusk", "target_speed": "fast"}}
+# mains flicker (indoor: daylight does not flicker) needs 1 kHz samples: costly, one seed
+FLICKER_CELLS = {"flicker_100": {"lighting": "flicker", "flicker_hz": 100.0},
+                 "flicker_120": {"lighting": "flicker", "flicker_hz": 120.0}}
 # the arm's wrist camera at home over the belt (docs/sim.md: the physical conditions)
 ARM_CELLS = {"nominal": {"lighting": "nominal"},
              "moving": {"lighting": "nominal", "conveyor": "moving", "belt_speed": 0.08},
@@ -54,15 +58,18 @@ ARM_CELLS = {"nominal": {"lighting": "nominal"},
              "fast_hdr": {"lighting": "hdr", "conveyor": "moving", "belt_speed": 0.25}}
 
 
-def run_cells(variants, seeds, episode_s: float, progress) -> list[dict]:
-    jobs = [("nav", v, name, {**config, "variant": v}) for v in variants
+def run_cells(variants, seeds, episode_s: float, progress, flicker: bool) -> list[dict]:
+    jobs = [("nav", v, name, {**config, "variant": v}, seeds, {}) for v in variants
             for name, config in NAV_CELLS.items()]
-    jobs += [("arm", "arm", name, config) for name, config in ARM_CELLS.items()]
+    if flicker:
+        jobs += [("nav", "indoor", name, config, seeds[:1], {"dvs_hz": 1000.0})
+                 for name, config in FLICKER_CELLS.items()]
+    jobs += [("arm", "arm", name, config, seeds, {}) for name, config in ARM_CELLS.items()]
     rows = []
-    for task, variant, name, config in jobs:
-        for seed in seeds:
+    for task, variant, name, config, cell_seeds, kw in jobs:
+        for seed in cell_seeds:
             t0 = time.perf_counter()
-            r = validate.sensor_cell(task, config, seed=seed, episode_s=episode_s)
+            r = validate.sensor_cell(task, config, seed=seed, episode_s=episode_s, **kw)
             r.update(cell=name, variant=variant, seconds=round(time.perf_counter() - t0, 1))
             rows.append(r)
             progress(f"cell {variant:7s} {name:11s} seed {seed}: detector "
@@ -163,7 +170,7 @@ def main() -> int:
     snr = {"curves": [validate.snr_curve(camera, t) for t in (0.01, 1 / 30)]}
     step = validate.step_range()
     progress(f"step 1e4:1: {json.dumps({k: step[k] for k in ('dim', 'bright')})}")
-    rows = run_cells(variants, seeds, episode_s, progress)
+    rows = run_cells(variants, seeds, episode_s, progress, flicker=not args.quick)
     means = cell_means(rows)
     hdr = [m for m in means if m["cell"] == "hdr" and m["variant"] != "arm"]
     out = {

@@ -137,8 +137,8 @@ class RadianceRenderer:
             lum = rr.luminance()                # cd/m^2
             rr.top_cd_m2, rr.floor_cd_m2        # the range one image holds
     It owns its own GL context (the grey model's textures differ from the colour
-    model's). `light_scale` in update() is the scene's flicker, applied to the lights'
-    diffuse as Scene.set_light_scale applies it to the colour model.
+    model's). `light_scale` in update() is the scene's flicker, applied to all of the
+    scene's light (see update).
     """
 
     def __init__(self, model: mujoco.MjModel, photometry: Photometry, height: int,
@@ -156,6 +156,8 @@ class RadianceRenderer:
         self.photometry = photometry
         self.unit = photometry.unit_cd_m2
         self.base_diffuse = self.grey.light_diffuse.copy()
+        self.base_ambient = self.grey.light_ambient.copy()
+        self.base_headlight = self.grey.vis.headlight.ambient.copy()
         if self._renderer is None:
             self._renderer = FrameRenderer(self.grey, self.height, self.width)
             self._renderer.unclamp_lighting()
@@ -177,7 +179,13 @@ class RadianceRenderer:
         return 20.0 * math.log10(self.top_cd_m2 / self.floor_cd_m2)
 
     def update(self, data: mujoco.MjData, camera: str | int, light_scale: float = 1.0) -> None:
+        """Pose the scene; `light_scale` is the flicker's: every light of the scene, its
+        ambient (indirect) light and the headlight's with it, since the indirect light of
+        a flickering lamp flickers too. (The 8-bit colour path modulates the lights'
+        diffuse only, as it always has.)"""
         self.grey.light_diffuse[:] = self.base_diffuse * light_scale
+        self.grey.light_ambient[:] = self.base_ambient * light_scale
+        self.grey.vis.headlight.ambient = self.base_headlight * light_scale
         self._renderer.update(data, camera)
 
     def luminance(self, out: np.ndarray | None = None) -> np.ndarray:
