@@ -3,6 +3,7 @@ input reads on; ring names from headers open nothing but this run's own plain fi
 import asyncio
 import os
 import tempfile
+import time
 from pathlib import Path
 
 import msgpack
@@ -453,3 +454,34 @@ def test_a_producer_that_goes_away_is_not_counted_as_oversize():
             ctx.term()
             return stats
     assert asyncio.run(scenario())["oversize"] == 0
+
+
+def test_the_profiler_counts_malformed_telemetry_instead_of_trusting_it():
+    """Telemetry batches go through the data plane's bounded decoder: garbage, msgpack
+    bombs (a huge array claimed in a few bytes) and oversized batches are counted."""
+    import msgpack as mp
+
+    from sebvs.runtime.profiler import MAX_TELEMETRY_BYTES, ProfileCollector
+
+    with tempfile.TemporaryDirectory(prefix="sebvs-hard-") as tmp:
+        endpoint = f"ipc://{tmp}/telemetry"
+        ctx = zmq.Context()
+        pub = ctx.socket(zmq.PUB)
+        pub.bind(endpoint)
+        prof = ProfileCollector({"actors": {"a": {"telemetry": endpoint, "consumed": True}}}, ctx)
+        time.sleep(0.2)                                  # the SUB joins
+        # 100,000 nils: 100 kB that unpack into a list past any batch's record limit
+        bomb = b"\xdd" + (100_000).to_bytes(4, "big") + b"\xc0" * 100_000
+        good = mp.packb({"actor": "a", "t_ns": 1, "records": [], "events": [],
+                         "skipped": 0, "drops": {}})
+        for body in (b"\xc1garbage", bomb, b"\0" * (MAX_TELEMETRY_BYTES + 1), good):
+            pub.send_multipart([b"telemetry", body])
+        deadline = time.monotonic() + 5
+        while prof.skipped["batches"] < 3 and time.monotonic() < deadline:
+            prof.poll(0.1)
+        prof.poll(0.2)
+        assert prof.skipped["batches"] == 3
+        assert prof.t_first is not None                  # the good batch was taken
+        prof.socket.close(linger=0)
+        pub.close(linger=0)
+        ctx.term()

@@ -30,12 +30,16 @@ import json
 import time
 from pathlib import Path
 
-import msgpack
 import numpy as np
 import zmq
 
 from .chainsplit import COMPONENTS, split_hops
+from .inputs import TELEMETRY_MAX_RECORDS
 from .stats import summarize
+from .wire import WireError, unpack_bounded
+
+# one telemetry batch (a node's records of one period, at most TELEMETRY_MAX_RECORDS)
+MAX_TELEMETRY_BYTES = 16 << 20
 
 # a telemetry record, as inputs.Inputs._handled writes it; the three arrival stamps came
 # later, so a record without them (8 fields) still counts everywhere but in the split
@@ -131,8 +135,10 @@ class ProfileCollector:
                 self._reread_clocks()
             frames = self.socket.recv_multipart()
             try:
-                batch = msgpack.unpackb(frames[-1], raw=False)
-            except Exception:   # msgpack raises several types on garbage
+                # the data plane's bounded decoder: a telemetry batch is counted, not trusted
+                batch = unpack_bounded(frames[-1], "telemetry", MAX_TELEMETRY_BYTES,
+                                       TELEMETRY_MAX_RECORDS + 16)
+            except WireError:
                 self.skipped["batches"] += 1
                 continue
             self.ingest(batch)

@@ -130,16 +130,24 @@ def encode_header(*, source: str, output: str, seq: int, t_sim: float | None,
                           "m": meta or {}}, use_bin_type=True)
 
 
+def unpack_bounded(raw, what: str = "header", max_bytes: int = MAX_HEADER_BYTES,
+                   max_len: int = 1 << 16) -> Any:
+    """msgpack from outside, within bounds (bytes, array and map lengths); WireError of
+    kind ``what`` otherwise. The one decoder for every msgpack a process receives: data
+    headers, telemetry batches, control and clock replies."""
+    if len(raw) > max_bytes:
+        raise WireError(f"{what} of {len(raw)} bytes exceeds {max_bytes}", what)
+    try:
+        return msgpack.unpackb(raw, raw=False, strict_map_key=True,
+                               max_array_len=max_len, max_map_len=min(max_len, 1 << 12))
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise WireError(f"{what} is not msgpack: {type(exc).__name__}: "
+                        f"{clip(str(exc), SHOWN)}", what) from None
+
+
 def decode_header(raw) -> dict:
     """Parse and validate a header; raises WireError naming what is wrong."""
-    if len(raw) > MAX_HEADER_BYTES:
-        raise WireError(f"header of {len(raw)} bytes exceeds {MAX_HEADER_BYTES}", "header")
-    try:
-        h = msgpack.unpackb(raw, raw=False, strict_map_key=True,
-                            max_array_len=1 << 16, max_map_len=1 << 12)
-    except Exception as exc:  # msgpack raises several unrelated types on garbage
-        raise WireError(f"header is not msgpack: {type(exc).__name__}: {clip(str(exc), SHOWN)}",
-                        "header") from None
+    h = unpack_bounded(raw, "header")
     if not isinstance(h, dict):
         raise WireError("header is not a map", "header")
     if h.get("v") != SCHEMA_VERSION:
