@@ -39,6 +39,11 @@ class PatternSource(Actor):
     """
     outputs = ("frames", "luma")
 
+    @classmethod
+    def message_bytes(cls, params) -> dict[str, int]:
+        return {"frames": params.width * params.height * 3,
+                "luma": params.width * params.height}
+
     @dataclass
     class Params:
         width: Side = 640
@@ -120,6 +125,7 @@ class Relay(Actor):
     """Passes frames on: `forward` re-publishes the upstream slot (no copy), `copy` copies it."""
     inputs = ("frames",)
     outputs = ("frames",)
+    forwards = {"frames": "frames"}
 
     @dataclass
     class Params:

@@ -150,3 +150,18 @@ def test_param_coercion():
     from actors.synthetic import PatternSource
     with pytest.raises(ValueError, match="unknown key 'colour'"):
         build_params(PatternSource.Params, {"colour": 1}, where="w")
+
+
+def test_a_max_bytes_below_a_known_inline_frame_is_refused_before_start():
+    """synthetic_hosts with the sink's max_bytes at 50,000 (its frames are 76,800 B, inline
+    across the two hosts) used to run with the sink receiving nothing, silently: the size
+    the source's parameters give is carried through the relay and checked at load."""
+    from sebvs.runtime.topology import TopologyError, load_topology
+    small = 'sink.inputs.frames={from="relay/frames", queue=8, max_bytes=50000}'
+    with pytest.raises(TopologyError, match=r"max_bytes 50,000 is below the 76,800-byte "
+                                            r"arrays of relay/frames.*at least 80,896"):
+        load_topology("topologies/synthetic_hosts.toml", [small])
+    load_topology("topologies/synthetic_hosts.toml",
+                  ['sink.inputs.frames={from="relay/frames", queue=8, max_bytes=90000}'])
+    # one host: the frames travel in shared memory, the header alone on the socket
+    load_topology("topologies/synthetic.toml", [small])

@@ -23,6 +23,16 @@ class Actor:
 
     inputs: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
+    # output -> input whose messages it passes on unchanged in size (a relay): the loader
+    # carries the producer's known message size through it
+    forwards: ClassVar[dict[str, str]] = {}
+
+    @classmethod
+    def message_bytes(cls, params: Any) -> dict[str, int]:
+        """The largest array payload (bytes) each output sends, where the parameters alone
+        say it. The topology loader compares it with a consumer's `max_bytes` on an edge
+        that carries arrays inline (tcp), before any process starts."""
+        return {}
 
     @dataclasses.dataclass
     class Params:

@@ -388,7 +388,50 @@ def build_topology(doc: dict, path: Path) -> Topology:
     _check_cycles(topo)
     _prune(topo)
     _check_groups(topo)
+    _check_inline_sizes(topo, path)
     return topo
+
+
+def _message_sizes(topo: "Topology") -> dict[tuple[str, str], int]:
+    """(actor, output) -> the largest array payload it sends, where known: the actors'
+    own `message_bytes`, carried through relays (`forwards`)."""
+    sizes: dict[tuple[str, str], int] = {}
+    for a in topo.actors.values():
+        try:
+            params = build_params(a.cls.Params, a.params, where=a.name)
+            known = a.cls.message_bytes(params)
+        except Exception:         # a size that cannot be told is simply not checked
+            known = {}
+        sizes.update({(a.name, out): int(n) for out, n in known.items()})
+    for _ in range(len(topo.actors)):          # relays of relays
+        for a in topo.actors.values():
+            for out, inp in a.cls.forwards.items():
+                spec = a.inputs.get(inp)
+                if spec is not None and (spec.producer, spec.output) in sizes:
+                    sizes.setdefault((a.name, out), sizes[(spec.producer, spec.output)])
+    return sizes
+
+
+def _check_inline_sizes(topo: "Topology", path: Path) -> None:
+    """An input whose `max_bytes` is below what its producer is known to send on an edge
+    that carries arrays inline (tcp: one transport for all, or two hosts) would have its
+    peer dropped by ZeroMQ at the first message: refused here, in one line."""
+    sizes = _message_sizes(topo)
+    for a in topo.active.values():
+        for inp in a.inputs.values():
+            producer = topo.actors[inp.producer]
+            inline = topo.transport == "tcp" or (bool(topo.hosts) and producer.host != a.host)
+            size = sizes.get((inp.producer, inp.output))
+            if inline and size is not None and size + HEADER_MARGIN > inp.max_bytes:
+                raise TopologyError(
+                    f"{path}: [actors.{a.name}] key 'inputs.{inp.name}': max_bytes "
+                    f"{inp.max_bytes:,} is below the {size:,}-byte arrays of "
+                    f"{inp.producer}/{inp.output}, which this edge carries inline (tcp); "
+                    f"ZeroMQ would drop every one: raise max_bytes to at least "
+                    f"{size + HEADER_MARGIN:,}")
+
+# room for the header beside the arrays, in the inline size check
+HEADER_MARGIN = 4096
 
 
 def _checked_keys(table: dict, known: dict, where: str) -> dict:
