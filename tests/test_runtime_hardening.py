@@ -317,12 +317,17 @@ def test_an_input_refuses_messages_over_its_max_bytes(tmp_path, max_bytes, deliv
     import time
 
     from sebvs.runtime.supervisor import Supervisor
-    from sebvs.runtime.topology import load_topology
+    from sebvs.runtime.topology import TopologyError, load_topology
     # over tcp every array travels inline: 64 x 48 RGB is a 9,216-byte frame
     topo = source_sink_topology(
         tmp_path, "big", topology='transport = "tcp"',
         source="width = 64\nheight = 48\nrate_hz = 100.0",
         sink_input=f'{{ from = "source/frames", max_bytes = {max_bytes} }}')
+    if not delivered:
+        # the source's parameters say its frames' size: refused before any process starts
+        with pytest.raises(TopologyError, match="9,216-byte arrays"):
+            load_topology(topo)
+        return
     sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
     sup.start()
     try:
@@ -485,3 +490,43 @@ def test_the_profiler_counts_malformed_telemetry_instead_of_trusting_it():
         prof.socket.close(linger=0)
         pub.close(linger=0)
         ctx.term()
+
+
+def test_a_subscriber_without_the_runs_keys_reads_nothing_from_its_tcp_endpoints(tmp_path):
+    """Every tcp socket of a run is a CURVE server keyed by the run's token: a local
+    process without it used to read a source's frames and any actor's telemetry."""
+    import time
+
+    from sebvs.runtime.curve import client
+    from sebvs.runtime.supervisor import Supervisor
+    from sebvs.runtime.topology import load_topology
+    topo = source_sink_topology(tmp_path, "curve", topology='transport = "tcp"',
+                                source="width = 32\nheight = 32\nrate_hz = 100.0",
+                                sink_input='"source/frames"')
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+    ctx = zmq.Context()
+    try:
+        data = sup.specs["source"]["outputs"]["frames"]["endpoint"]
+        telemetry = sup.specs["sink"]["telemetry"]
+        assert data.startswith("tcp://") and telemetry.startswith("tcp://")
+        got = {}
+        for who, keyed in (("stranger", False), ("member", True)):
+            s = ctx.socket(zmq.SUB)
+            s.setsockopt(zmq.LINGER, 0)
+            s.setsockopt(zmq.SUBSCRIBE, b"")
+            if keyed:
+                client(s, data, sup.token)
+            s.connect(data)
+            s.connect(telemetry)
+            deadline, n = time.monotonic() + 1.5, 0
+            while time.monotonic() < deadline:
+                if s.poll(100):
+                    n += len(b"".join(s.recv_multipart()))
+            got[who] = n
+            s.close()
+        assert got["stranger"] == 0
+        assert got["member"] > 0          # the endpoints were live all along
+    finally:
+        ctx.term()
+        sup.stop()

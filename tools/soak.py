@@ -62,6 +62,7 @@ def main() -> int:
     topo = load_topology(args.topology, overrides)
     sup = Supervisor(topo, runs_dir=ROOT / "runs", echo=lambda s: None)
     series: list[dict] = []
+    prof = None
     t0 = time.monotonic()
     try:
         sup.start()
@@ -91,6 +92,8 @@ def main() -> int:
                   f"fds {sum((v or {}).get('fds', 0) for v in procs.values())}, rings "
                   f"{rings}, deadlines {deadlines}", flush=True)
     finally:
+        if prof is not None:
+            prof.socket.close(linger=0)   # the supervisor's context ends only once it is closed
         sup.stop()
     base = next((r for r in series if r["t_s"] >= args.warmup), series[0] if series else None)
     last = series[-1] if series else None

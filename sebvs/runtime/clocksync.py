@@ -22,6 +22,7 @@ from typing import Callable, Sequence
 import msgpack
 import zmq
 
+from . import curve
 from .clock import now_ns
 
 DEFAULT_EXCHANGES = 16
@@ -65,6 +66,7 @@ def measure_offset(ctx: zmq.Context, endpoint: str, token: str | None,
     None when it answers none of them (it is gone, or refuses the token)."""
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
+    curve.client(sock, endpoint, token)
     sock.connect(endpoint)
     request = msgpack.packb({"cmd": "clock", "token": token}, use_bin_type=True)
     rows = []

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from . import curve
 from .clock import now_ns
 from .shm import RingReader
 from .stats import summarize
@@ -132,7 +133,8 @@ class Inputs:
         self.records: list = []
         self.records_skipped = 0
 
-    def connect(self, specs: dict, ctx: zmq.Context, actor, run_id: str) -> None:
+    def connect(self, specs: dict, ctx: zmq.Context, actor, run_id: str,
+                token: str | None = None) -> None:
         """A SUB socket per input of the spec, each bound to the actor's ``on_<input>``.
 
         Rings are opened only under this run's prefix (a relay forwards its producer's
@@ -151,6 +153,7 @@ class Inputs:
             monitor = sock.get_monitor_socket(
                 zmq.EVENT_DISCONNECTED | zmq.EVENT_CONNECT_RETRIED | zmq.EVENT_CONNECTED
                 | zmq.EVENT_CONNECT_DELAYED)
+            curve.client(sock, i["endpoint"], token)     # tcp: the run's CURVE keys
             sock.connect(i["endpoint"])
             handler = getattr(actor, f"on_{inp}")
             self.ports[inp] = _Input(inp, handler, sock, i["queue"] == "latest",

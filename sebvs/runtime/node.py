@@ -20,6 +20,7 @@ import numpy as np
 import zmq
 import zmq.asyncio
 
+from . import curve
 from .clock import now_ns
 from .inputs import TELEMETRY_MAX_RECORDS, InputStats, Inputs
 from .outputs import Outputs, count_subscriptions
@@ -62,16 +63,19 @@ class Node:
     # ------------------------------------------------------------------ sockets
     def _bind_sockets(self) -> None:
         spec = self.spec
-        self.outputs.bind(spec["outputs"], self.sync_ctx)
-        self.inputs.connect(spec["inputs"], self.sync_ctx, self.actor, spec["run_id"])
+        self.outputs.bind(spec["outputs"], self.sync_ctx, self.token)
+        self.inputs.connect(spec["inputs"], self.sync_ctx, self.actor, spec["run_id"],
+                            self.token)
         self.control = self.ctx.socket(zmq.ROUTER)
         self.control.setsockopt(zmq.LINGER, 0)
         self.control.setsockopt(zmq.MAXMSGSIZE, MAX_CONTROL_BYTES)
+        curve.serve(self.control, spec["control"], self.token)
         self.control.bind(spec["control"])
         self.telemetry_socket = self.sync_ctx.socket(zmq.XPUB)
         self.telemetry_socket.setsockopt(zmq.XPUB_VERBOSE, 1)
         self.telemetry_socket.setsockopt(zmq.SNDHWM, 64)
         self.telemetry_socket.setsockopt(zmq.LINGER, 0)
+        curve.serve(self.telemetry_socket, spec["telemetry"], self.token)
         self.telemetry_socket.bind(spec["telemetry"])
 
     def _watch_subscriptions(self) -> None:

@@ -17,6 +17,7 @@ import numpy as np
 import zmq
 
 from .clock import now_ns
+from . import curve
 from .shm import RingWriter, packed_offsets
 from .wire import dtype_to_wire, encode_header
 
@@ -46,12 +47,13 @@ class Outputs:
         self.name = actor_name
         self.ports: dict[str, _Output] = {}
 
-    def bind(self, specs: dict, ctx: zmq.Context) -> None:
+    def bind(self, specs: dict, ctx: zmq.Context, token: str | None = None) -> None:
+        """Bind every output; tcp endpoints as CURVE servers keyed by the run's token."""
         for out, o in specs.items():
-            sock = _xpub(ctx, o["hwm"], o["endpoint"])
+            sock = _xpub(ctx, o["hwm"], o["endpoint"], token)
             if o.get("inproc"):   # consumers in this process (a process group) connect here
                 sock.bind(o["inproc"])
-            remote = _xpub(ctx, o["hwm"], o["remote"]) if o.get("remote") else None
+            remote = _xpub(ctx, o["hwm"], o["remote"], token) if o.get("remote") else None
             ring = RingWriter(o["ring"], o["slots"]) if o.get("ring") else None
             self.ports[out] = _Output(out, f"{self.name}/{out}".encode(), sock, ring,
                                       o["subscribers"], remote,
@@ -200,12 +202,13 @@ def _inline(name: str, a, descs: list, buffers: list) -> None:
     buffers.append(a.data.cast("B") if a.nbytes else b"")  # len() = bytes
 
 
-def _xpub(ctx: zmq.Context, hwm: int, endpoint: str):
+def _xpub(ctx: zmq.Context, hwm: int, endpoint: str, token: str | None = None):
     # XPUB rather than PUB: it tells us of each subscription, so we can wait for them
     sock = ctx.socket(zmq.XPUB)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)
     sock.setsockopt(zmq.SNDHWM, hwm)
     sock.setsockopt(zmq.LINGER, 0)
+    curve.serve(sock, endpoint, token)
     sock.bind(endpoint)
     return sock
 

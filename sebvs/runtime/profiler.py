@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import zmq
 
+from . import curve
 from .chainsplit import COMPONENTS, split_hops
 from .inputs import TELEMETRY_MAX_RECORDS
 from .stats import summarize
@@ -60,6 +61,8 @@ class ProfileCollector:
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.SUBSCRIBE, b"")
         for actor in info["actors"].values():
+            # one socket for every actor: its CURVE client keys (tcp) serve them all
+            curve.client(self.socket, actor["telemetry"], info.get("token"))
             self.socket.connect(actor["telemetry"])
         self.sinks = {n for n, a in info["actors"].items() if not a.get("consumed")}
         self.edges = collections.defaultdict(list)

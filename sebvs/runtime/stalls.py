@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import msgpack
 import zmq
 
+from . import curve
+
 STALL_PERIOD_S = 2.0
 STALL_ROUNDS = 2
 QUERY_TIMEOUT_S = 0.3
@@ -31,6 +33,7 @@ def query_all(ctx: zmq.Context, endpoints: dict[str, str], request: dict,
         for name, endpoint in endpoints.items():
             s = ctx.socket(zmq.DEALER)
             s.setsockopt(zmq.LINGER, 0)
+            curve.client(s, endpoint, request.get("token"))
             s.connect(endpoint)
             s.send(body)
             socks[s] = name

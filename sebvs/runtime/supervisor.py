@@ -39,6 +39,7 @@ from typing import Callable
 import msgpack
 import zmq
 
+from . import curve
 from .clocksync import measure_offset
 from .params import clip, short_repr
 from .shm import remove_run_rings
@@ -601,6 +602,7 @@ class Supervisor:
             for member in p.members:
                 s = self.ctx.socket(zmq.DEALER)
                 s.setsockopt(zmq.LINGER, 0)
+                curve.client(s, self.specs[member]["control"], self.token)
                 s.connect(self.specs[member]["control"])
                 s.send(msgpack.packb({"cmd": "stop", "token": self.token}))
                 sockets.append(s)
@@ -652,6 +654,7 @@ def control_request(ctx: zmq.Context, endpoint: str, request: dict,
     s = ctx.socket(zmq.DEALER)
     s.setsockopt(zmq.LINGER, 0)
     try:
+        curve.client(s, endpoint, request.get("token"))
         s.connect(endpoint)
         s.send(msgpack.packb(request, use_bin_type=True))
         if not s.poll(int(timeout_s * 1000)):
