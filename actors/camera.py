@@ -197,7 +197,9 @@ class Camera(Actor):
         want_ideal = "ideal" in self.wanted and rgb_due
         if self.physical and "rgb" in self.wanted:
             self.states.add(t_ep, msg.arrays)
-        if self.blur > 1 and self.wanted & {"rgb", "ideal"}:
+        # the blur history serves the ideal render (rgb too, on the 8-bit sensor; the
+        # physical camera integrates its own sub-frames from self.states)
+        if self.blur > 1 and self.wanted & ({"ideal"} if self.physical else {"rgb", "ideal"}):
             self._remember(msg.arrays)
         if not (want_luma or want_rgb or want_ideal
                 or (rgb_due and self.wanted & {"depth", "seg"})):
