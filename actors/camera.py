@@ -234,7 +234,7 @@ class Camera(Actor):
             lum = self.rig.luminance(self.data, self.cam, self._light_scale(msg.arrays),
                                      None if self.luma_renderer is not None else out["luma"])
             if self.luma_renderer is not None:
-                self.rig.luminance_at((self.lh, self.lw), lum, out["luma"])
+                self.rig.luminance_at(lum, out["luma"])
             self.counts["clipped_px"] += self.rig.radiance.clipped
             await self.emit("luma", out, parent=msg, meta={**out_meta, "units": "cd/m2"})
             self.counts["luma"] += 1

@@ -88,10 +88,10 @@ class SensorRig:
         self.radiance.update(data, camera, light_scale)
         return self.radiance.luminance(out)
 
-    def luminance_at(self, shape: tuple[int, int], lum: np.ndarray, out: np.ndarray
-                     ) -> np.ndarray:
-        """`lum` resized to (h, w) by area (the event sensor's own resolution)."""
-        cv2.resize(lum, (shape[1], shape[0]), dst=out, interpolation=cv2.INTER_AREA)
+    @staticmethod
+    def luminance_at(lum: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """`lum` resized by area to `out`'s size (the event sensor's own resolution)."""
+        cv2.resize(lum, (out.shape[1], out.shape[0]), dst=out, interpolation=cv2.INTER_AREA)
         return out
 
     def frame(self, history: StateHistory, pose, data: mujoco.MjData, camera: str | int,
@@ -117,8 +117,11 @@ class SensorRig:
             lum = self.luminance(data, camera, light_scale_of(state))
             np.multiply(chroma(self._albedo), lum[..., None], out=stack[i])
         self.subframes_rendered += times.size
-        self.mean_luminance = stack.mean(axis=0) @ REC709.astype(np.float32)
-        return self.camera.expose(stack, t_end, exposure_s)
+        # the exposure's mean, taken once: what the camera integrates (expose() of one
+        # frame means it as it would the stack) and what the caller scores against
+        mean = stack.mean(axis=0, dtype=np.float64)
+        self.mean_luminance = (mean @ REC709).astype(np.float32)
+        return self.camera.expose(mean, t_end, exposure_s)
 
     def close(self) -> None:
         self.radiance.close()
