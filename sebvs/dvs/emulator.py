@@ -174,7 +174,7 @@ class EventEmulator:
         self.shape = self.input_shape = self.t_ns = None
         self.frames = self.gap_restarts = 0
 
-    def _init_state(self, luma: np.ndarray, t_ns: int) -> None:
+    def _init_state(self, luma: np.ndarray, t_ns: int, log=linlog) -> None:
         p = self.params
         h, w = luma.shape
         self.shape = (h, w)
@@ -189,12 +189,12 @@ class EventEmulator:
         self.noise_rate = (p.shot_noise_rate_hz
                            * 10.0 ** (p.noise_rate_cov_decades * rng.standard_normal((h, w)))
                            ).astype(np.float32)
-        self._start(luma, t_ns)
+        self._start(luma, t_ns, log)
 
-    def _start(self, luma: np.ndarray, t_ns: int) -> None:
+    def _start(self, luma: np.ndarray, t_ns: int, log=linlog) -> None:
         """The pixels' memory (filtered and memorised levels, refractory) from this frame;
         the fixed pattern (thresholds, leak and noise rates) is the chip's and stays."""
-        self.lp = self._log(luma)
+        self.lp = log(luma)
         self.base = self.lp.copy()
         self.last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, np.int64)
         self.t_ns = t_ns
@@ -216,10 +216,9 @@ class EventEmulator:
 
     def _step(self, frame: np.ndarray, t_ns: int, log) -> np.ndarray:
         luma = self.preprocess(frame)
-        self._log = log
         if self.t_ns is None:
             self.input_shape = frame.shape
-            self._init_state(luma, t_ns)
+            self._init_state(luma, t_ns, log)
             self.frames = 1
             return empty_events()
         dt_ns = t_ns - self.t_ns
@@ -230,7 +229,7 @@ class EventEmulator:
             # Nobody observed the sensor over the gap: leak and shot noise integrated over it
             # would be G * rate events per pixel (25 M on 16 x 16 for 1e6 s), all invented,
             # and the brightness cannot be interpolated across it. Treat it as a restart.
-            self._start(luma, t_ns)
+            self._start(luma, t_ns, log)
             self.gap_restarts += 1
             return empty_events()
         p = self.params
