@@ -10,9 +10,12 @@ TOOLS = Path(__file__).resolve().parents[1] / "tools"
 
 @contextlib.contextmanager
 def tool_module(name: str):
-    """tools/<name>.py, imported and registered in sys.modules while the block runs
-    (dataclasses look their class's module up there), unregistered after it."""
-    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+    """tools/<name>.py (name may hold a folder: "bench/bench_sim"), imported under its file's
+    stem and registered in sys.modules while the block runs (dataclasses look their class's
+    module up there), unregistered after it."""
+    path = TOOLS / f"{name}.py"
+    name = path.stem
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     try:
