@@ -530,3 +530,38 @@ def test_a_subscriber_without_the_runs_keys_reads_nothing_from_its_tcp_endpoints
     finally:
         ctx.term()
         sup.stop()
+
+
+def test_a_consumer_whose_limit_refuses_every_frame_is_reported_stalled(tmp_path, monkeypatch):
+    """The case the load-time size check cannot see (an actor whose frame size is not known
+    from its parameters): every frame is over the input's max_bytes, so the input reconnects
+    after each one and receives nothing. The input counts each drop as `oversize` and the
+    supervisor's stall report names the input."""
+    import time
+
+    from sebvs.runtime import supervisor, topology
+    from sebvs.runtime.topology import load_topology
+    monkeypatch.setattr(supervisor, "STALL_PERIOD_S", 0.3)
+    monkeypatch.setattr(topology, "_check_inline_sizes", lambda *a, **k: None)
+    topo = source_sink_topology(
+        tmp_path, "small", topology='transport = "tcp"',
+        source="width = 64\nheight = 48\nrate_hz = 100.0",
+        sink_input='{ from = "source/frames", max_bytes = 4096 }')
+    messages, frames = [], {}
+    sup = supervisor.Supervisor(load_topology(topo), runs_dir=tmp_path, echo=messages.append)
+
+    def poll(dt: float) -> None:          # the sink's counters, taken once while it runs
+        time.sleep(dt)
+        if not frames and time.monotonic() > t_stats:
+            frames.update(sup.request("sink", {"cmd": "stats"})["result"]["inputs"]["frames"])
+            assert sup.procs["sink"].popen.poll() is None
+    sup.start()
+    t_stats = time.monotonic() + 3.0
+    try:
+        sup.wait(3.5, on_poll=poll)
+    finally:
+        sup.stop()
+    assert frames["received"] == 0 and frames["oversize"] >= 2, frames
+    stalled = [m for m in messages if "stalled" in m]
+    assert len(stalled) == 1 and "input sink.frames is stalled" in stalled[0], messages
+    assert "frames over its max_bytes dropped by ZeroMQ" in stalled[0]

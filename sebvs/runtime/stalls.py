@@ -88,5 +88,16 @@ class StallWatch:
                 self.stalled.add(key)
                 found.append(f"input {actor}.{inp} is stalled: {src}/{out} sent {sent} "
                              f"(+{sent - last[0]} in the last round) while it received "
-                             f"nothing for {self._quiet[key]} rounds (still at {received})")
+                             f"nothing for {self._quiet[key]} rounds (still at {received})"
+                             + _why(stats[actor]["inputs"][inp]))
         return found
+
+
+def _why(counters: dict) -> str:
+    """What the input itself counted instead of receiving, when it counted anything."""
+    parts = []
+    if counters.get("oversize"):
+        parts.append(f"{counters['oversize']} frames over its max_bytes dropped by ZeroMQ")
+    if counters.get("malformed"):
+        parts.append(f"{counters['malformed']} malformed messages")
+    return f"; it counted {', '.join(parts)}" if parts else ""
