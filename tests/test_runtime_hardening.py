@@ -565,3 +565,23 @@ def test_a_consumer_whose_limit_refuses_every_frame_is_reported_stalled(tmp_path
     stalled = [m for m in messages if "stalled" in m]
     assert len(stalled) == 1 and "input sink.frames is stalled" in stalled[0], messages
     assert "frames over its max_bytes dropped by ZeroMQ" in stalled[0]
+
+
+def test_rings_that_do_not_fit_dev_shm_are_refused_before_any_process_starts(tmp_path,
+                                                                            monkeypatch):
+    """A 640 x 480 source's ring (12 slots of 900 KiB) against 1 MiB free: one line naming
+    the budget and the ring, and no actor process started."""
+    from sebvs.runtime import shm
+    from sebvs.runtime.supervisor import RunFailed, Supervisor
+    from sebvs.runtime.topology import load_topology
+    monkeypatch.setattr(shm, "free_bytes", lambda directory=shm.SHM_DIR: 1 << 20)
+    topo = source_sink_topology(tmp_path, "wide", source="width = 640\nheight = 480")
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    try:
+        with pytest.raises(RunFailed, match=r"rings need [\d.,]+ MiB and /dev/shm has 1.0 MiB "
+                                            r"free \(largest: source/frames "):
+            sup.start()
+        assert not any(p.popen for p in sup.procs.values())
+    finally:
+        sup.stop()
+    assert shm.ring_bytes(12, 640 * 480 * 3) == 4096 + 12 * 921_600

@@ -79,6 +79,30 @@ def _reserve_pages(fd: int, size: int, path: Path) -> None:
                       f"lower the topology's queue / image sizes") from None
 
 
+def ring_bytes(n_slots: int, payload_bytes: int) -> int:
+    """What a ring of `n_slots` slots for `payload_bytes`-byte messages takes in SHM_DIR."""
+    return PAGE + int(n_slots) * _round_up(max(int(payload_bytes), PAGE), PAGE)
+
+
+def free_bytes(directory: Path = SHM_DIR) -> int:
+    """Bytes an unprivileged writer may still allocate in `directory`."""
+    st = os.statvfs(directory)
+    return st.f_bavail * st.f_frsize
+
+
+def check_budget(rings: dict[str, int], directory: Path = SHM_DIR) -> None:
+    """Refuse, before any process starts, a set of rings ({label: bytes}) that the
+    shared-memory file system cannot hold all at once, naming the largest."""
+    need = sum(rings.values())
+    if not rings or need <= (free := free_bytes(directory)):
+        return
+    largest = ", ".join(f"{label} {n / 2**20:,.1f} MiB"
+                        for label, n in sorted(rings.items(), key=lambda kv: -kv[1])[:3])
+    raise ShmFull(28, f"this topology's shared-memory rings need {need / 2**20:,.1f} MiB and "
+                      f"{directory} has {free / 2**20:,.1f} MiB free (largest: {largest}): "
+                      f"free space there, or lower queue depths or image sizes")
+
+
 class RingWriter:
     """The producer side of one output's ring; grows (as a new file) when a sample outgrows it."""
 

@@ -42,9 +42,10 @@ import zmq
 from . import curve
 from .clocksync import measure_offset
 from .params import clip, short_repr
-from .shm import remove_run_rings
+from .shm import ShmFull, check_budget, remove_run_rings, ring_bytes
 from .stalls import STALL_PERIOD_S, StallWatch, query_all
-from .topology import Topology, TopologyError, check_cpus_available, load_topology
+from .topology import (Topology, TopologyError, check_cpus_available, load_topology,
+                       message_sizes)
 
 STOP_GRACE_S = 1.0      # after `stop`, before SIGTERM
 TERM_GRACE_S = 0.5      # after SIGTERM, before SIGKILL
@@ -285,12 +286,25 @@ class Supervisor:
         write_json_atomic(self.rundir / "run.json", self.info)
 
     # ------------------------------------------------------------------ lifecycle
+    def _check_ring_budget(self, specs: dict) -> None:
+        """Every ring whose message size the topology tells, all at once against the free
+        /dev/shm: refused here, in one line, rather than an actor dying at its first frame."""
+        sizes = message_sizes(self.topo)
+        rings = {f"{n}/{o}": ring_bytes(v["slots"], sizes[(n, o)])
+                 for n, s in specs.items() for o, v in s["outputs"].items()
+                 if v.get("ring") and (n, o) in sizes}
+        try:
+            check_budget(rings)
+        except ShmFull as exc:
+            raise RunFailed(exc.strerror) from None
+
     def start(self) -> None:
         (self.rundir / "logs").mkdir(parents=True, exist_ok=True)
         self.sockdir.mkdir(mode=0o700, parents=True)
         (self.sockdir / "rundir").write_text(str(self.rundir))
         specs = self._plan()
         self.specs = specs
+        self._check_ring_budget(specs)
         self.pull = self.ctx.socket(zmq.PULL)
         self.pull.setsockopt(zmq.LINGER, 0)
         self.pull.bind(self.supervisor_endpoint)

@@ -392,7 +392,7 @@ def build_topology(doc: dict, path: Path) -> Topology:
     return topo
 
 
-def _message_sizes(topo: "Topology") -> dict[tuple[str, str], int]:
+def message_sizes(topo: "Topology") -> dict[tuple[str, str], int]:
     """(actor, output) -> the largest array payload it sends, where known: the actors'
     own `message_bytes`, carried through relays (`forwards`)."""
     sizes: dict[tuple[str, str], int] = {}
@@ -416,7 +416,7 @@ def _check_inline_sizes(topo: "Topology", path: Path) -> None:
     """An input whose `max_bytes` is below what its producer is known to send on an edge
     that carries arrays inline (tcp: one transport for all, or two hosts) would have its
     peer dropped by ZeroMQ at the first message: refused here, in one line."""
-    sizes = _message_sizes(topo)
+    sizes = message_sizes(topo)
     for a in topo.active.values():
         for inp in a.inputs.values():
             producer = topo.actors[inp.producer]
