@@ -532,6 +532,52 @@ def test_a_subscriber_without_the_runs_keys_reads_nothing_from_its_tcp_endpoints
         sup.stop()
 
 
+def test_curve_off_is_said_recorded_and_followed_by_the_profiler(tmp_path, monkeypatch):
+    """SEBVS_CURVE=off (for measuring CURVE's cost): the supervisor says the tcp endpoints
+    are open, run.json records it, a stranger reads frames, and the profiler, whose own
+    environment still says on, attaches by what run.json says."""
+    import json
+    import time
+
+    from sebvs.runtime import curve
+    from sebvs.runtime.profiler import ProfileCollector
+    from sebvs.runtime.supervisor import Supervisor
+    from sebvs.runtime.topology import load_topology
+    monkeypatch.setenv("SEBVS_CURVE", "off")
+    topo = source_sink_topology(tmp_path, "plain", topology='transport = "tcp"',
+                                source="width = 32\nheight = 32\nrate_hz = 100.0")
+    messages = []
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=messages.append)
+    sup.start()
+    ctx = zmq.Context()
+    try:
+        info = json.loads((sup.rundir / "run.json").read_text())
+        assert info["curve"] is False
+        assert any("SEBVS_CURVE=off" in m and "unencrypted" in m for m in messages), messages
+        monkeypatch.setenv("SEBVS_CURVE", "on")
+        collector = ProfileCollector(info, ctx)
+        s = ctx.socket(zmq.SUB)
+        s.setsockopt(zmq.LINGER, 0)
+        s.setsockopt(zmq.SUBSCRIBE, b"")
+        s.connect(sup.specs["source"]["outputs"]["frames"]["endpoint"])
+        deadline, n = time.monotonic() + 1.5, 0
+        while time.monotonic() < deadline:
+            collector.poll(0.05)
+            if s.poll(10):
+                n += len(b"".join(s.recv_multipart()))
+        s.close()
+        rep = collector.report()
+        collector.close()
+        assert n > 0
+        assert any(e["count"] > 0 for e in rep["edges"]), rep["edges"]
+    finally:
+        ctx.term()
+        sup.stop()
+    monkeypatch.setenv("SEBVS_CURVE", "maybe")
+    with pytest.raises(ValueError, match="SEBVS_CURVE='maybe': expected 'on' or 'off'"):
+        curve.enabled()
+
+
 def test_a_consumer_whose_limit_refuses_every_frame_is_reported_stalled(tmp_path, monkeypatch):
     """The case the load-time size check cannot see (an actor whose frame size is not known
     from its parameters): every frame is over the input's max_bytes, so the input reconnects

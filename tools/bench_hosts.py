@@ -5,6 +5,7 @@ Three placements of the synthetic chain source > relay > sink (160 x 160 RGB at 
 arrays inline over tcp in all three), each run for `--for` seconds with the profiler:
 
 same_host     topologies/synthetic.toml with `transport = "tcp"`: one supervisor
+plain         the same with SEBVS_CURVE=off: what CURVE (on by default) costs per hop
 two_hosts     topologies/synthetic_hosts.toml: the relay on host b, a second supervisor
               on 127.0.0.1, both hops cross between the two
 skewed        the same, b's clock 50 ms ahead (SEBVS_CLOCK_SKEW_NS): the profiler
@@ -14,7 +15,9 @@ Reported per placement and hop: p50 and p90 of the hop latency (median over repe
 for the skewed runs the estimated offset, its stated uncertainty and its error against
 the injected skew (both "hosts" share one physical clock, so the skew is the true
 offset). The placements alternate within each repeat so a slow phase of a shared machine
-hits all. The figure the issue names: |skewed p50 - same_host p50| per hop <= 0.5 ms.
+hits all. The figure the issue names: |skewed p50 - same_host p50| per hop <= 0.5 ms;
+beside it, `curve_cost`: same_host - plain per hop (p50, p90), and the CPU time of the
+whole one-host run (supervisor and actors) per frame with and without it.
 
     tools/bench_hosts.py [--quick] [--repeats N] [--for S] [--json FILE]
 """
@@ -23,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -54,14 +58,18 @@ def run_placement(kind: str, seconds: float, tmp: Path) -> dict:
     runs = ["--runs-dir", str(tmp / "runs")]
     common = [*FRAMES, *runs, "--for", str(seconds), "--profile-json", str(profile)]
     token = {"SEBVS_RUN_TOKEN": os.urandom(16).hex()}
-    if kind == "same_host":
+    if kind in ("same_host", "plain"):
+        env = dict(token, SEBVS_CURVE="off" if kind == "plain" else "on")
+        cpu0 = _children_cpu_s()
         proc = sebvs(["run", "topologies/synthetic.toml", "--set", "topology.transport=tcp",
-                      *common], token)
+                      *common], env)
         out, _ = proc.communicate(timeout=seconds + 60)
+        cpu_s = _children_cpu_s() - cpu0       # the run and every actor it waited for
         if proc.returncode:
             raise RuntimeError(f"{kind}: exit {proc.returncode}\n{out[-2000:]}")
         clock = None
     else:
+        cpu_s = None
         ports = ["--set", f"hosts.a.port={free_port_block(8)}", "--set", f"hosts.b.port={free_port_block(8)}"]
         skew = {"SEBVS_CLOCK_SKEW_NS": str(SKEW_NS)} if kind == "skewed" else {}
         b = sebvs(["run", "topologies/synthetic_hosts.toml", "--host", "b", *ports, *FRAMES,
@@ -81,7 +89,14 @@ def run_placement(kind: str, seconds: float, tmp: Path) -> dict:
     hops = {h: {"p50_us": edges[h]["p50"], "p90_us": edges[h]["p90"],
                 "count": edges[h]["count"],
                 "clock_uncertainty_us": edges[h].get("clock_uncertainty_us")} for h in HOPS}
-    return {"hops": hops, "clock": clock}
+    frames = hops[HOPS[0]]["count"]
+    return {"hops": hops, "clock": clock,
+            "cpu_us_per_frame": 1e6 * cpu_s / frames if cpu_s is not None and frames else None}
+
+
+def _children_cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
 
 
 def median(values):
@@ -101,12 +116,12 @@ def main() -> int:
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
     seconds = args.seconds or (3.0 if args.quick else 8.0)
-    kinds = ["same_host", "two_hosts", "skewed"]
+    kinds = ["same_host", "plain", "two_hosts", "skewed"]
     results = {k: [] for k in kinds}
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="bench-hosts-") as tmp:
         for r in range(repeats):
-            order = kinds[r % 3:] + kinds[:r % 3]
+            order = kinds[r % len(kinds):] + kinds[:r % len(kinds)]
             for kind in order:
                 results[kind].append(run_placement(kind, seconds, Path(tmp)))
                 print(f"repeat {r + 1}/{repeats} {kind}: " + ", ".join(
@@ -132,6 +147,14 @@ def main() -> int:
         "error_ns": [c["offset_ns"] - SKEW_NS for c in clocks],
         "within_uncertainty": all(abs(c["offset_ns"] - SKEW_NS) <= c["uncertainty_ns"]
                                   for c in clocks)}
+    plain, keyed = report["placements"]["plain"], report["placements"]["same_host"]
+    cpu = {k: median(r["cpu_us_per_frame"] for r in results[k]) for k in ("same_host", "plain")}
+    report["curve_cost"] = {
+        **{h: {"p50_us": round(keyed[h]["p50_us"] - plain[h]["p50_us"], 1),
+               "p90_us": round(keyed[h]["p90_us"] - plain[h]["p90_us"], 1)} for h in HOPS},
+        "cpu_us_per_frame": {"curve": round(cpu["same_host"], 1),
+                             "plain": round(cpu["plain"], 1),
+                             "ratio": round(cpu["same_host"] / cpu["plain"], 3)}}
     for h in HOPS:
         diff = abs(report["placements"]["skewed"][h]["p50_us"]
                    - report["placements"]["same_host"][h]["p50_us"]) / 1e3

@@ -12,10 +12,16 @@ run.json written 0600).
 A process without the token (a stray subscriber) completes no handshake and reads 0
 bytes. A libzmq built without CURVE (no libsodium) makes a tcp run fail at its first
 socket with a line that says so.
+
+SEBVS_CURVE=off in the environment of every process of a run turns it off: for measuring
+what it costs (tools/bench_hosts.py) and for a network nobody else can reach. The
+supervisor says so when it starts and writes it in run.json ("curve"), which the tools
+that attach (profile, view) follow.
 """
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass
 
 import zmq
@@ -40,8 +46,22 @@ def keys_from_token(token: str) -> CurveKeys:
                      zmq.curve_public(client_secret), client_secret)
 
 
+def enabled() -> bool:
+    """SEBVS_CURVE: "on" (the default) or "off"."""
+    value = os.environ.get("SEBVS_CURVE", "on").strip().lower()
+    if value not in ("on", "off"):
+        raise ValueError(f"SEBVS_CURVE={value!r}: expected 'on' or 'off'")
+    return value == "on"
+
+
+def token_of(run_info: dict) -> str | None:
+    """The token a tool attaching to a run (run.json) keys its tcp sockets with: none when
+    the run went without CURVE."""
+    return run_info.get("token") if run_info.get("curve", True) else None
+
+
 def _needed(endpoint: str, token: str | None) -> bool:
-    if not (token and isinstance(endpoint, str) and endpoint.startswith("tcp://")):
+    if not (enabled() and token and isinstance(endpoint, str) and endpoint.startswith("tcp://")):
         return False
     if not zmq.has("curve"):
         raise RuntimeError(f"{endpoint}: tcp endpoints of a run are encrypted with ZeroMQ "

@@ -62,7 +62,7 @@ class ProfileCollector:
         self.socket.setsockopt(zmq.SUBSCRIBE, b"")
         for actor in info["actors"].values():
             # one socket for every actor: its CURVE client keys (tcp) serve them all
-            curve.client(self.socket, actor["telemetry"], info.get("token"))
+            curve.client(self.socket, actor["telemetry"], curve.token_of(info))
             self.socket.connect(actor["telemetry"])
         self.sinks = {n for n, a in info["actors"].items() if not a.get("consumed")}
         self.edges = collections.defaultdict(list)

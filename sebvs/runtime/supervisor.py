@@ -302,6 +302,10 @@ class Supervisor:
         (self.rundir / "logs").mkdir(parents=True, exist_ok=True)
         self.sockdir.mkdir(mode=0o700, parents=True)
         (self.sockdir / "rundir").write_text(str(self.rundir))
+        try:
+            curve_on = curve.enabled()
+        except ValueError as exc:
+            raise RunFailed(str(exc)) from None
         specs = self._plan()
         self.specs = specs
         self._check_ring_budget(specs)
@@ -311,6 +315,7 @@ class Supervisor:
         self.info = {
             "name": self.topo.name, "run_id": self.run_id, "topology": str(self.topo.path),
             "rundir": str(self.rundir), "sockdir": str(self.sockdir), "token": self.token,
+            "curve": curve_on,
             "supervisor_pid": os.getpid(), "clock": self.topo.clock,
             "started_at": datetime.now().isoformat(timespec="seconds"),
             "pruned": [n for n, a in self.topo.actors.items() if a.pruned],
@@ -329,6 +334,11 @@ class Supervisor:
         }
         if self.host is not None:
             self._describe_hosts(specs)
+        if not self.info["curve"] and any(
+                str(ep).startswith("tcp://") for s in specs.values()
+                for ep in (s["control"], s["telemetry"])):
+            self.echo("sebvs: SEBVS_CURVE=off: this run's tcp endpoints are unencrypted and "
+                      "open to any process that can reach them")
         for name, members in self.groups.items():
             spec_path = self.sockdir / f"{name}.json"
             # an actor alone under its own name runs as before; anything else is a group
