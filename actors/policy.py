@@ -42,9 +42,11 @@ class Policy(Actor):
         modalities: list[str] = field(default_factory=list)   # ... these (default: all three)
         modality: str = "rgb+event"  # the active one
         threads: Annotated[int, Range(ge=1, le=256)] = 1    # torch and OpenCV threads
-        # "eager" (as trained; lockstep results reproduce bit for bit) or "frozen" (a
-        # TorchScript graph: ~0.5 ms less per cold tick at 160 px; sebvs/policy/graph.py)
-        graph: Literal["eager", "frozen"] = "eager"
+        # "eager" (as trained; lockstep results reproduce bit for bit), "frozen" (a
+        # TorchScript graph: ~0.5 ms less per cold tick at 160 px; sebvs/policy/graph.py),
+        # or "auto": frozen on the realtime clock, where the chain's latency is the figure,
+        # eager in lockstep, where results must reproduce bit for bit
+        graph: Literal["auto", "eager", "frozen"] = "auto"
 
     async def setup(self) -> None:
         from sebvs.policy.infer import PolicySet, PreviousFrame, TickSync, resolve_checkpoints
@@ -53,9 +55,11 @@ class Policy(Actor):
         p = self.params
         _set_threads(p.threads)
         table = resolve_checkpoints(p.checkpoints, p.directory, p.task, p.modalities)
-        self.policies = PolicySet(table, task=p.task if p.directory else None, graph=p.graph)
+        graph = p.graph if p.graph != "auto" else \
+            ("frozen" if self.clock == "realtime" else "eager")
+        self.policies = PolicySet(table, task=p.task if p.directory else None, graph=graph)
         for m, why in self.policies.fallbacks.items():
-            self.log.warning("%s runs eager, not %s: %s", m, p.graph, why)
+            self.log.warning("%s runs eager, not %s: %s", m, graph, why)
         # the previous tick's RGB frame is kept only where a loaded checkpoint reads it
         self.previous = PreviousFrame() if "rgb" in self.connected and any(
             "rgb_prev" in MODALITY_INPUTS[m] for m in self.policies.modalities) else None

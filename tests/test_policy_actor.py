@@ -203,3 +203,14 @@ def test_frozen_graph_acts_like_eager_and_stays_for_the_run(ckpts):
     assert actors["frozen"].stats()["graphs"] == \
         {"rgb": "frozen", "event": "frozen", "rgb+event": "frozen"}
     assert set(actors["eager"].stats()["graphs"].values()) == {"eager"}
+
+
+@pytest.mark.parametrize("clock, expected", [("realtime", "frozen"), ("lockstep", "eager")])
+def test_the_default_graph_is_frozen_on_the_realtime_clock_and_eager_in_lockstep(
+        ckpts, clock, expected):
+    """graph="auto" (the default): the chain's latency matters on the realtime clock, bit
+    for bit reproduction in lockstep."""
+    actor = Policy("policy", Policy.Params(directory=str(ckpts)), clock=clock,
+                   connected=frozenset({"rgb", "events"}), node=_Node())
+    asyncio.run(actor.setup())
+    assert set(actor.stats()["graphs"].values()) == {expected}

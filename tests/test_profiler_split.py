@@ -221,3 +221,24 @@ def test_live_synthetic_run_splits_and_traces(tmp_path):
     assert cli.returncode == 0, cli.stderr
     assert "chain split: source > relay > sink" in cli.stdout
     assert check_trace(json.loads((tmp_path / "t.json").read_text()))
+
+
+def test_loop_latency_leaves_the_warm_up_out_and_reads_the_targets(tmp_path):
+    from sebvs.runtime.profiler import format_loop_latency
+    col = collector(tmp_path)
+    assert col.loop_latency() is None
+    ticks = [loop_tick(10_000_000 * k, k) for k in range(1, 41)]
+    ticks[0]["sim"][7] += 50_000_000          # the first chain was slow: inside the warm-up
+    for actor in ("sim", "policy", "camera"):
+        col.ingest(batch(actor, [t[actor] for t in ticks]))
+    loop = col.loop_latency(warmup_s=0.1)
+    col.close()
+    # chains that started 0.1 s after the first one: ticks 11..40, 2,125 us each
+    assert (loop["chain"], loop["instances"]) == (LOOP, 30)
+    assert loop["p50_ms"] == pytest.approx(2.125, abs=0.006)
+    assert loop["p99_ms"] == pytest.approx(2.125, abs=0.006)     # the slow one left out
+    assert loop["met"] is True
+    line = format_loop_latency(loop, "lockstep")
+    assert line.startswith(f"loop latency ({LOOP}): p50 2.1") and "met" in line
+    assert line.endswith("(the target is for the realtime clock; this run was lockstep)")
+    assert "not met" in format_loop_latency(dict(loop, p99_ms=20.0, met=False), "realtime")

@@ -107,3 +107,40 @@ def test_an_actor_runs_at_its_topology_priority(tmp_path):
         assert nice("source") == ours              # inherited, as without the key
     finally:
         sup.stop()
+
+
+NAV_POLICY = ROOT / "topologies" / "nav_policy.toml"
+REALTIME = ['topology.clock="realtime"']
+
+
+def test_on_the_realtime_clock_the_loops_actors_default_to_realtime():
+    from sebvs.runtime.topology import loop_members
+    topo = load_topology(NAV_POLICY, [*REALTIME, "camera.priority=5"])
+    loop = {"sim", "camera", "emulator", "accumulator", "policy"}
+    assert loop_members(topo) == loop
+    got = {n: (a.priority, a.loop_priority) for n, a in topo.actors.items()}
+    # the tracker is off the loop; the camera's own priority stays
+    assert got == {**{n: ("realtime", True) for n in loop - {"camera"}},
+                   "camera": (5, False), "tracker": (None, False)}
+    topo = load_topology(NAV_POLICY, [*REALTIME, 'topology.loop_priority="none"'])
+    assert {a.priority for a in topo.actors.values()} == {None}
+    topo = load_topology(NAV_POLICY, ['topology.loop_priority=-5'])       # lockstep
+    assert {a.priority for a in topo.actors.values()} == {None}
+    # a group follows its loop member: a process is one priority
+    topo = load_topology(NAV_POLICY, [*REALTIME, "policy.process=g", "tracker.process=g"])
+    assert topo.actors["tracker"].priority == "realtime"
+    with pytest.raises(TopologyError, match="key 'loop_priority': expected"):
+        load_topology(NAV_POLICY, [*REALTIME, 'topology.loop_priority="fast"'])
+
+
+def test_a_refused_realtime_priority_is_said_in_one_line_at_start(tmp_path, monkeypatch):
+    from sebvs.runtime import supervisor
+    monkeypatch.setattr(supervisor, "realtime_refused",
+                        lambda: "SCHED_FIFO not granted ([Errno 1] Operation not permitted)")
+    said = []
+    sup = supervisor.Supervisor(load_topology(NAV_POLICY, REALTIME), runs_dir=tmp_path,
+                                echo=said.append)
+    sup._say_priority_refused()
+    assert len(said) == 1 and said[0].startswith(
+        "sebvs: sim, camera, emulator, accumulator, policy run at the default priority, not "
+        "realtime (the loop's default): SCHED_FIFO not granted"), said

@@ -48,6 +48,9 @@ RECORD_FIELDS = ("input", "topic", "seq", "tick", "t_sim", "stamps", "start_ns",
                  "slept_ns", "woke_ns", "taken_ns")
 KEEP_RECORDS = 200_000     # records kept for the split and the trace (oldest dropped first)
 KEEP_CHAINS = 100_000      # chain instances kept per chain for the split
+# the sensor-to-action loop on the realtime clock (issues 18 and 37): docs/runtime.md
+LOOP_TARGETS_MS = {"p50": 5.0, "p99": 15.0}
+LOOP_WARMUP_S = 1.0
 CLOCK_REREAD_S = 1.0       # run.json re-read for refreshed clock offsets (multi-host runs)
 
 
@@ -279,6 +282,26 @@ class ProfileCollector:
             out.append(entry)
         return out
 
+    def loop_latency(self, warmup_s: float = LOOP_WARMUP_S) -> dict | None:
+        """The closed loop's latency (the most observed chain that starts and ends at one
+        actor: the sim's state to its action applied), leaving out the chains that started
+        in the first ``warmup_s`` (models compile and renderers start on the first
+        samples), beside LOOP_TARGETS_MS. None when no chain closes a loop."""
+        loops = [c for c, inst in self.chain_instances.items() if _closes_loop(c) and inst]
+        if not loops:
+            return None
+        chain = max(loops, key=lambda c: len(self.chain_instances[c]))
+        instances = self.chain_instances[chain]
+        since = min(i[0][0][2] for i in instances) + int(warmup_s * 1e9)
+        totals = [end - stamps[0][2] for stamps, end, _ in instances if stamps[0][2] >= since]
+        if not totals:
+            return None
+        p50, p99 = (float(np.percentile(totals, q)) / 1e6 for q in (50, 99))
+        return {"chain": chain, "instances": len(totals), "warmup_s": warmup_s,
+                "p50_ms": round(p50, 2), "p99_ms": round(p99, 2),
+                "target_p50_ms": LOOP_TARGETS_MS["p50"], "target_p99_ms": LOOP_TARGETS_MS["p99"],
+                "met": p50 <= LOOP_TARGETS_MS["p50"] and p99 <= LOOP_TARGETS_MS["p99"]}
+
     def report(self) -> dict:
         def drops(key):
             first, last = self.drops_first.get(key), self.drops_last.get(key)
@@ -379,6 +402,20 @@ def format_report(rep: dict) -> str:
 
 COMPONENT_TITLES = {"queueing": "queueing", "wakeup": "wake-up", "transport": "transport",
                     "handler": "handler"}
+
+
+def format_loop_latency(loop: dict | None, clock: str) -> str:
+    """One line: the loop's p50 and p99 beside the targets, for the clock it ran on."""
+    if loop is None:
+        return "loop latency: no closed-loop chain observed after the warm-up"
+    verdict = "met" if loop["met"] else "not met"
+    line = (f"loop latency ({loop['chain']}): p50 {loop['p50_ms']:.2f} ms, p99 "
+            f"{loop['p99_ms']:.2f} ms over {loop['instances']} chains after the first "
+            f"{loop['warmup_s']:g} s; target p50 <= {loop['target_p50_ms']:g} ms, p99 <= "
+            f"{loop['target_p99_ms']:g} ms on a quiet machine: {verdict}")
+    if clock != "realtime":
+        line += " (the target is for the realtime clock; this run was lockstep)"
+    return line
 
 
 def _closes_loop(chain: str) -> bool:

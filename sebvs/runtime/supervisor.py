@@ -46,6 +46,7 @@ from .shm import ShmFull, check_budget, remove_run_rings, ring_bytes
 from .stalls import STALL_PERIOD_S, StallWatch, query_all
 from .topology import (Topology, TopologyError, check_cpus_available, load_topology,
                        message_sizes)
+from .worker import realtime_refused
 
 STOP_GRACE_S = 1.0      # after `stop`, before SIGTERM
 TERM_GRACE_S = 0.5      # after SIGTERM, before SIGKILL
@@ -286,6 +287,18 @@ class Supervisor:
         write_json_atomic(self.rundir / "run.json", self.info)
 
     # ------------------------------------------------------------------ lifecycle
+    def _say_priority_refused(self) -> None:
+        """One line when the actors that ask for SCHED_FIFO here will not get it (each
+        actor's log says so too, but nobody reads those before the figures look wrong)."""
+        wanted = [n for n, a in self.topo.active.items()
+                  if a.priority == "realtime" and self._is_local(n)]
+        why = realtime_refused() if wanted else None
+        if why:
+            source = "the loop's default" if all(self.topo.actors[n].loop_priority
+                                                 for n in wanted) else "asked for"
+            self.echo(f"sebvs: {', '.join(wanted)} run at the default priority, not "
+                      f"realtime ({source}): {why}; docs/runtime.md, \"The loop's priority\"")
+
     def _check_ring_budget(self, specs: dict) -> None:
         """Every ring whose message size the topology tells, all at once against the free
         /dev/shm: refused here, in one line, rather than an actor dying at its first frame."""
@@ -334,6 +347,7 @@ class Supervisor:
         }
         if self.host is not None:
             self._describe_hosts(specs)
+        self._say_priority_refused()
         if not self.info["curve"] and any(
                 str(ep).startswith("tcp://") for s in specs.values()
                 for ep in (s["control"], s["telemetry"])):

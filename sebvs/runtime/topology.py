@@ -84,6 +84,7 @@ class ActorSpec:
     process: str | None = None      # the process group it shares with others; None = its own
     host: str | None = None         # the [hosts] entry it runs on; None = a one-host topology
     priority: int | str | None = None   # nice value or "realtime"; None = inherited
+    loop_priority: bool = False         # `priority` is the topology's loop_priority
 
 
 @dataclass
@@ -111,6 +112,9 @@ class Topology:
     # "grouped": the actors' `process` keys say which share a process; "isolated": every
     # actor alone, whatever they say; "auto": grouped on small machines, else isolated
     placement: str = "grouped"
+    # on the realtime clock, the priority of a closed loop's actors that ask for none
+    # (None: leave them at the default); docs/runtime.md, "The loop's priority"
+    loop_priority: int | str | None = "realtime"
     description: str = ""
     actors: dict[str, ActorSpec] = field(default_factory=dict)
     # several hosts: each runs `sebvs run FILE --host NAME`; the first listed is the primary
@@ -322,6 +326,9 @@ def build_topology(doc: dict, path: Path) -> Topology:
     top = doc.get("topology")
     if not isinstance(top, dict):
         raise TopologyError(f"{path}: missing [topology] table")
+    top = dict(top)
+    loop_priority = _parse_loop_priority(top.pop("loop_priority", "realtime"),
+                                         f"{path}: [topology]")
     checked = _checked_keys(top, TOPOLOGY_KEYS, f"{path}: [topology]")
     if "name" not in checked:
         raise TopologyError(f"{path}: [topology] key 'name' is required")
@@ -329,7 +336,7 @@ def build_topology(doc: dict, path: Path) -> Topology:
         raise TopologyError(f"{path}: [topology] key 'name': {short_repr(checked['name'])} is "
                             f"not a run name (up to 100 ASCII letters, digits, '_', '-' and '.', "
                             f"not starting with '.')")
-    topo = Topology(path=path, **checked)
+    topo = Topology(path=path, loop_priority=loop_priority, **checked)
     topo.digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str)
                                  .encode()).hexdigest()[:16]
     topo.hosts = _parse_hosts(doc.get("hosts", {}), path)
@@ -387,6 +394,7 @@ def build_topology(doc: dict, path: Path) -> Topology:
                                     f"{', '.join(producer.cls.outputs) or 'none'})")
     _check_cycles(topo)
     _prune(topo)
+    _apply_loop_priority(topo)
     _check_groups(topo)
     _check_inline_sizes(topo, path)
     return topo
@@ -489,6 +497,52 @@ def _parse_priority(value: Any, where: str) -> int | str:
                         f"{short_repr(value)}")
 
 
+def _parse_loop_priority(value: Any, where: str) -> int | str | None:
+    """The [topology] key `loop_priority`: a priority as an actor's, or "none"."""
+    if value == "none":
+        return None
+    try:
+        return _parse_priority(value, where)
+    except TopologyError:
+        raise TopologyError(f"{where} key 'loop_priority': expected \"realtime\" (the "
+                            f"default), a nice value from {NICE_RANGE[0]} to {NICE_RANGE[1]}, "
+                            f"or \"none\", got {short_repr(value)}") from None
+
+
+def loop_members(topo: "Topology") -> set[str]:
+    """The active actors on a closed loop (sensor to action and back to the sim)."""
+    active = topo.active
+    edges = {n: {i.producer for i in a.inputs.values() if i.producer in active}
+             for n, a in active.items()}
+    return {n for comp in _strong_components(edges)
+            if len(comp) > 1 or comp[0] in edges[comp[0]] for n in comp}
+
+
+def _apply_loop_priority(topo: "Topology") -> None:
+    """On the realtime clock the loop's latency is the figure that matters, so its actors
+    that ask for no priority get `loop_priority` (docs/runtime.md: SCHED_FIFO halves the
+    chain's tail on a loaded machine). A process is one priority: an actor sharing one with
+    a loop member follows it, unless some member of that group asked for its own."""
+    if topo.clock != "realtime" or topo.loop_priority is None:
+        return
+    chosen = loop_members(topo)
+    groups: dict[str, list[ActorSpec]] = {}
+    for a in topo.active.values():
+        if a.process is not None:
+            groups.setdefault(a.process, []).append(a)
+    for members in groups.values():
+        if any(a.name in chosen for a in members):
+            if any(a.priority is not None for a in members):
+                chosen -= {a.name for a in members}
+            else:
+                chosen |= {a.name for a in members}
+    for name in chosen:
+        a = topo.actors[name]
+        if a.priority is None:
+            a.priority = topo.loop_priority
+            a.loop_priority = True
+
+
 def _parse_process(value: Any, where: str) -> str:
     """The `process` key: the name of the process group the actor shares (it names the
     group's log file and socket paths, so it follows the actor-name rules)."""
@@ -565,9 +619,8 @@ def _prune(topo: Topology) -> None:
                 changed = True
 
 
-def _check_cycles(topo: Topology) -> None:
-    """A cycle must contain a clock source (an actor with run()), or nothing would start it."""
-    edges = {n: {i.producer for i in a.inputs.values()} for n, a in topo.actors.items()}
+def _strong_components(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components of the graph {node: its predecessors}."""
     index, low, stack, on_stack, comps = {}, {}, [], set(), []
 
     def strongconnect(v, counter=[0]):
@@ -594,6 +647,13 @@ def _check_cycles(topo: Topology) -> None:
     for v in edges:
         if v not in index:
             strongconnect(v)
+    return comps
+
+
+def _check_cycles(topo: Topology) -> None:
+    """A cycle must contain a clock source (an actor with run()), or nothing would start it."""
+    edges = {n: {i.producer for i in a.inputs.values()} for n, a in topo.actors.items()}
+    comps = _strong_components(edges)
     for comp in comps:
         if len(comp) == 1 and comp[0] not in edges[comp[0]]:
             continue

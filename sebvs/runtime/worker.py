@@ -14,6 +14,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 
 from .params import build_params
 from .topology import REALTIME_PRIORITY
@@ -70,6 +71,23 @@ def set_priority(priority: int | str) -> str | None:
                 "CAP_SYS_NICE or `ulimit -e`"
             return f"priority {priority!r} not granted ({exc}); needs {need}"
     return None
+
+
+def realtime_refused() -> str | None:
+    """Why this process may not give a thread SCHED_FIFO (None: it may), tried on a
+    short-lived thread of its own so nothing else changes."""
+    why: list[str | None] = [None]
+
+    def probe() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+        except (PermissionError, OSError, AttributeError) as exc:
+            why[0] = f"SCHED_FIFO not granted ({exc}); needs CAP_SYS_NICE or `ulimit -r`"
+
+    t = threading.Thread(target=probe, name="sebvs-rt-probe")
+    t.start()
+    t.join()
+    return why[0]
 
 
 def load_class(path: str):
