@@ -119,6 +119,8 @@ class EventEmulator:
         self._max_gap_ns = round(min(self.params.max_gap_s * 1e9, 2.0 ** 63))
         self._eps_key: float | None = None   # dt / tau of the cached low-pass gain table
         self._eps: np.ndarray | None = None
+        self._ramp_key: float | None = None  # the same for lowpass_hold "linear"
+        self._ramp: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ input
     def preprocess(self, frame: np.ndarray) -> np.ndarray:
@@ -195,6 +197,7 @@ class EventEmulator:
         """The pixels' memory (filtered and memorised levels, refractory) from this frame;
         the fixed pattern (thresholds, leak and noise rates) is the chip's and stays."""
         self.lp = log(luma)
+        self.l_in = self.lp          # the unfiltered level of the last frame (linear hold)
         self.base = self.lp.copy()
         self.last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, np.int64)
         self.t_ns = t_ns
@@ -235,7 +238,9 @@ class EventEmulator:
         p = self.params
         dt = dt_ns * 1e-9
         target = log(luma)
-        if p.cutoff_hz > 0:
+        if p.cutoff_hz > 0 and p.lowpass_hold == "linear":
+            lp = self._lowpass_linear(luma, target, dt)
+        elif p.cutoff_hz > 0:
             tau = 1.0 / (2 * math.pi * p.cutoff_hz)
             if luma.dtype == np.uint8:   # one exponential per DN value, not per pixel
                 eps = _lookup(luma, self._eps_table(dt / tau))
@@ -263,7 +268,44 @@ class EventEmulator:
         order = np.argsort(events["t"], kind="stable")
         events = events[order]
         self.lp, self.base, self.t_ns = lp, base, t_ns
+        if p.lowpass_hold == "linear":
+            self.l_in = target       # not reused in place on this path
         return events
+
+    def _lowpass_linear(self, luma: np.ndarray, target: np.ndarray, dt: float) -> np.ndarray:
+        """The filtered level after dt when the input moves linearly from the previous
+        frame's level L0 to this one's L1 (lowpass_hold "linear"): the exact solution of
+        lp' = (L(t) - lp) / tau_a for a ramp, with k = dt / tau_a,
+
+            lp1 = L1 + (lp0 - L0) exp(-k) - (L1 - L0) (1 - exp(-k)) / k
+
+        The held step ("step") puts the whole change at the start of the interval, so its
+        events come early by up to one interval, more the longer the intervals: fine at a
+        fixed rate, a bias that grows where an adaptive sampler spaces frames out."""
+        tau = 1.0 / (2 * math.pi * self.params.cutoff_hz)
+        if luma.dtype == np.uint8:   # per DN value, as the step's gain
+            decay, ramp = (_lookup(luma, table) for table in self._ramp_tables(dt / tau))
+        else:
+            k = luma + np.float32(20.0)
+            k *= np.float32(dt / tau / 275.0)
+            decay = np.exp(-k)
+            ramp = -np.expm1(-k)
+            ramp /= k
+        l0 = self.l_in
+        lp = self.lp - l0
+        lp *= decay
+        lp += target
+        lp -= (target - l0) * ramp
+        return lp
+
+    def _ramp_tables(self, dt_over_tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """exp(-k) and (1 - exp(-k)) / k per DN value, k = a dt / tau (kept while dt holds)."""
+        if dt_over_tau != self._ramp_key:
+            k = BANDWIDTH * dt_over_tau
+            self._ramp = (np.exp(-k).astype(np.float32),
+                          (-np.expm1(-k) / k).astype(np.float32))
+            self._ramp_key = dt_over_tau
+        return self._ramp
 
     def _eps_table(self, dt_over_tau: float) -> np.ndarray:
         """The low-pass gain per DN value for this dt / tau; a camera at a fixed rate sends

@@ -23,10 +23,20 @@ class EmulatorParams:
     seed: int = 0
     reference_cd_m2: float = 127.0    # linear input: the luminance read as 255 DN, a
                                       # white surface under 400 lux (office light)
+    lowpass_hold: str = "step"        # the low-pass's input between two frames: "step",
+                                      # held at the new frame's level over the interval
+                                      # (v2e's); "linear", moving from the previous
+                                      # frame's level to the new one, as the crossing
+                                      # times assume (docs/dvs.md, "Adaptive sampling")
 
     def validate(self) -> "EmulatorParams":
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "lowpass_hold":
+                if v not in ("step", "linear"):
+                    raise ValueError(f"emulator: lowpass_hold must be 'step' or 'linear', "
+                                     f"got {v!r}")
+                continue
             if f.name in ("blur",):
                 if not isinstance(v, bool):
                     raise ValueError(f"emulator: {f.name} must be true or false, got {v!r}")

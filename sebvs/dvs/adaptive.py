@@ -1,0 +1,157 @@
+"""When to render the next luma frame for the event emulator: adaptive sampling (ESIM's rule).
+
+The emulator places each threshold crossing on the straight line between two consecutive
+samples of a pixel's log brightness (sebvs/dvs/emulator.py). That line is a good stand-in
+for the true brightness only while a pixel changes by less than its contrast threshold C
+between samples; a fixed clock either wastes renders on a still scene or under-samples a
+fast one. So, as ESIM does (Rebecq et al. 2018), take the next sample when the brightness
+could have changed by a fraction lambda of C:
+
+    rate  = max over pixels |L_k - L_(k-1)| / (t_k - t_(k-1))     log units per second,
+                                                                   from the last two samples
+    dt    = lambda * C / rate, clamped to [1 / ceiling_hz, 1 / floor_hz]
+    next  = t_k + dt
+
+L is the lin-log brightness the emulator works in (`linlog` of 8-bit luma). The rate is
+the last interval's largest per-pixel change, so the next interval's largest change stays
+near lambda * C while the motion changes slowly against the sampling (the scenes' drives and
+targets accelerate over tens of ms, samples come every 1-20 ms). A change of one 8-bit step
+is the frame's quantisation, not motion, and does not count (`quantum_dn`): without that a
+still scene whose dark pixels flicker by one DN (0.15 log units below 20 DN) would be
+sampled at the rate of its own rounding. A still scene asks for the floor rate.
+
+The samples a caller can take come at fixed candidate times (the sim's states, every
+1 / render_hz): `due(t, period)` says whether the candidate at t is the last one before the
+next sample time, so the bound holds on the candidates' grid. Samples taken for another
+reason (the control ticks, which always get one) are observed like the others.
+
+    sampler = LumaSampler(SamplerParams(fraction=0.5, threshold=0.3, floor_hz=20,
+                                        ceiling_hz=1000))
+    for t, state in states:                        # every 1 ms, say
+        if control or sampler.due(t, 0.001):
+            luma = render(state)
+            sampler.observe(t, luma)               # uint8 (H, W), or float log brightness
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .emulator import LINLOG
+
+# a candidate within this of the next sample time counts as at it (float episode times)
+_TIME_TOLERANCE_S = 1e-9
+
+
+@dataclass(frozen=True)
+class SamplerParams:
+    """The adaptive sampler's options (the camera actor's luma_* parameters)."""
+    fraction: float = 0.5        # lambda: the largest per-pixel change aimed at, as a
+                                 # fraction of the contrast threshold
+    threshold: float = 0.3       # C, log units: the emulator's contrast threshold (its
+                                 # pos_thres / neg_thres; the smaller if they differ)
+    floor_hz: float = 20.0       # at least this many samples per second (a still scene)
+    ceiling_hz: float = 1000.0   # at most this many (a fast one)
+    quantum_dn: float = 1.0      # per-pixel changes up to this many 8-bit steps are
+                                 # rounding, not motion (0: count every change)
+
+    def validate(self) -> "SamplerParams":
+        for name, v in asdict(self).items():
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise ValueError(f"luma sampler: {name} must be a finite number, got {v!r}")
+        if not 0 < self.fraction <= 10:
+            raise ValueError(f"luma sampler: fraction must be in (0, 10], got {self.fraction}")
+        if self.threshold <= 0:
+            raise ValueError(f"luma sampler: threshold must be positive, got {self.threshold}")
+        if not 0 < self.floor_hz <= self.ceiling_hz:
+            raise ValueError(f"luma sampler: need 0 < floor_hz <= ceiling_hz, got "
+                             f"{self.floor_hz} and {self.ceiling_hz}")
+        if self.quantum_dn < 0:
+            raise ValueError(f"luma sampler: quantum_dn must not be negative, got "
+                             f"{self.quantum_dn}")
+        return self
+
+    @property
+    def bound(self) -> float:
+        """lambda * C: the per-pixel log change one interval should stay below."""
+        return self.fraction * self.threshold
+
+
+def sample_interval(log_rate: float, params: SamplerParams) -> float:
+    """Seconds from a sample to the next for a largest brightness change rate `log_rate`
+    (log units per second): bound / rate, clamped to [1 / ceiling_hz, 1 / floor_hz]; a
+    rate of 0 (a still scene) gives the floor's interval."""
+    shortest, longest = 1.0 / params.ceiling_hz, 1.0 / params.floor_hz
+    if not log_rate > 0:
+        return longest
+    return min(max(params.bound / log_rate, shortest), longest)
+
+
+def log_brightness(luma: np.ndarray) -> np.ndarray:
+    """The emulator's lin-log brightness of 8-bit luma: float32, the shape of `luma`."""
+    return LINLOG[luma]
+
+
+def largest_log_change(previous: np.ndarray, current: np.ndarray,
+                       quantum: np.ndarray | float = 0.0) -> float:
+    """The largest per-pixel |current - previous| beyond `quantum` (a per-pixel or scalar
+    allowance for rounding), 0 when no pixel changed by more."""
+    change = np.abs(current - previous)
+    change -= quantum
+    return max(float(change.max()), 0.0) if change.size else 0.0
+
+
+# lin-log step of one 8-bit value at each DN: what rounding alone can change a pixel by
+_DN_STEP = np.abs(np.diff(LINLOG, append=LINLOG[-1] + (LINLOG[-1] - LINLOG[-2])))
+
+
+class LumaSampler:
+    """Decides, candidate by candidate, when the next luma sample is due (module docstring).
+
+    Times are seconds of one stream (the episode's); call `reset()` when it restarts.
+    """
+
+    def __init__(self, params: SamplerParams | None = None) -> None:
+        self.params = (params or SamplerParams()).validate()
+        self.reset()
+
+    def reset(self) -> None:
+        """A new stream: the next candidate is sampled, and the first interval after it is
+        the ceiling's (no rate has been measured yet)."""
+        self.t_last: float | None = None
+        self.log_last: np.ndarray | None = None
+        self.quantum_last: np.ndarray | None = None
+        self.rate = math.inf            # log units per second; inf: unknown, sample soon
+        self.next_t = -math.inf
+        self.samples = 0
+
+    def due(self, t: float, period: float = 0.0) -> bool:
+        """Whether to sample the candidate at `t`, the next candidate coming `period` s
+        later: yes when that one would be past the next sample time (so no interval
+        outgrows the bound on the candidates' grid), or when t is already past it."""
+        return t + period > self.next_t + _TIME_TOLERANCE_S
+
+    def observe(self, t: float, frame: np.ndarray) -> float:
+        """A sample taken at `t`: 8-bit luma (uint8 (H, W)) or log brightness (float
+        (H, W)). Updates the rate from the previous sample; returns the next sample time."""
+        p = self.params
+        if frame.dtype == np.uint8:
+            log = log_brightness(frame)
+            quantum = _DN_STEP[frame] * np.float32(p.quantum_dn) if p.quantum_dn else 0.0
+        else:
+            log = np.asarray(frame, np.float32)
+            quantum = 0.0
+        if self.t_last is not None and t > self.t_last:
+            allowance = np.maximum(quantum, self.quantum_last) \
+                if isinstance(quantum, np.ndarray) and isinstance(self.quantum_last, np.ndarray) \
+                else quantum
+            change = largest_log_change(self.log_last, log, allowance)
+            self.rate = change / (t - self.t_last)
+        elif self.t_last is not None and t < self.t_last:
+            self.rate = math.inf          # time went back: a new stream the caller missed
+        self.t_last, self.log_last, self.quantum_last = t, log, quantum
+        self.samples += 1
+        self.next_t = t + sample_interval(self.rate, p)
+        return self.next_t

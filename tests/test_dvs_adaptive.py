@@ -1,0 +1,189 @@
+"""Adaptive luma sampling (sebvs/dvs/adaptive.py), the fidelity figures that judge it
+(sebvs/dvs/fidelity.py) and the emulator's linear hold that spaced-out samples need."""
+import math
+
+import numpy as np
+import pytest
+
+from sebvs.dvs.adaptive import LumaSampler, SamplerParams, largest_log_change, \
+    sample_interval
+from sebvs.dvs.emulator import EVENT_DTYPE, EventEmulator
+from sebvs.dvs.fidelity import compare_streams, count_maps, nearest_time_errors, pearson
+from sebvs.dvs.params import preset
+
+PARAMS = SamplerParams(fraction=0.5, threshold=0.3, floor_hz=20.0, ceiling_hz=1000.0)
+
+
+def edge(t: float, speed_px_s: float, width_px: float = 6.0, shape=(8, 96),
+         contrast: float = 2.0) -> np.ndarray:
+    """Log brightness of a soft vertical edge at x = 10 + speed t (float32 (h, w))."""
+    x = np.arange(shape[1], dtype=np.float64)
+    row = 3.0 + contrast / (1.0 + np.exp(-(x - 10.0 - speed_px_s * t) / width_px))
+    return np.broadcast_to(row, shape).astype(np.float32)
+
+
+def sampled(sampler: LumaSampler, frame_at, duration: float, period: float = 0.001):
+    """Run a sampler over candidates every `period` s; the sample times."""
+    times = []
+    for i in range(round(duration / period) + 1):
+        t = i * period
+        if sampler.due(t, period):
+            sampler.observe(t, frame_at(t))
+            times.append(t)
+    return np.array(times)
+
+
+# ---------------------------------------------------------------------------- the rule
+def test_interval_is_the_bound_over_the_rate_clamped():
+    assert sample_interval(15.0, PARAMS) == pytest.approx(0.15 / 15.0)      # 10 ms
+    assert sample_interval(1e9, PARAMS) == pytest.approx(1 / 1000)         # ceiling
+    assert sample_interval(0.0, PARAMS) == pytest.approx(1 / 20)           # floor
+    assert sample_interval(1e-6, PARAMS) == pytest.approx(1 / 20)
+    assert sample_interval(math.inf, PARAMS) == pytest.approx(1 / 1000)    # unknown: soon
+    assert sample_interval(float("nan"), PARAMS) == pytest.approx(1 / 20)
+
+
+def test_largest_change_ignores_rounding_allowance():
+    a = np.zeros((2, 2), np.float32)
+    b = a.copy()
+    b[0, 0] = 0.2
+    assert largest_log_change(a, b) == pytest.approx(0.2)
+    assert largest_log_change(a, b, 0.05) == pytest.approx(0.15)
+    assert largest_log_change(a, b, 0.3) == 0.0
+
+
+@pytest.mark.parametrize("bad", [dict(fraction=0), dict(threshold=-1), dict(floor_hz=0),
+                                 dict(floor_hz=2000.0), dict(quantum_dn=-1),
+                                 dict(ceiling_hz=float("inf")), dict(fraction=True)])
+def test_bad_options_are_refused(bad):
+    with pytest.raises(ValueError, match="luma sampler"):
+        SamplerParams(**bad).validate()
+
+
+# ---------------------------------------------------------------------------- the sampler
+def test_still_scene_asks_for_the_floor_rate():
+    frame = np.full((16, 16), 90, np.uint8)
+    times = sampled(LumaSampler(PARAMS), lambda t: frame, 1.0)
+    gaps = np.diff(times)
+    # the first interval is the ceiling's (no rate known yet), then the floor's
+    assert gaps[0] == pytest.approx(0.001)
+    assert np.allclose(gaps[1:], 1 / 20)
+    assert len(times) == 21                 # 0, 0.001, then every 50 ms to 0.951
+
+
+def test_one_dn_flicker_in_the_dark_is_rounding_not_motion():
+    rng = np.random.default_rng(0)
+    dark = rng.integers(5, 15, (16, 16)).astype(np.uint8)
+    flicker = lambda t: dark + (rng.random(dark.shape) < 0.1).astype(np.uint8)  # noqa: E731
+    lenient = sampled(LumaSampler(PARAMS), flicker, 1.0)
+    strict = sampled(LumaSampler(SamplerParams(quantum_dn=0.0)), flicker, 1.0)
+    assert len(lenient) <= 22            # the floor's
+    assert len(strict) > 3 * len(lenient)   # one DN below 20 is 0.15 log units: the bound
+
+
+def test_fast_pan_asks_more_samples_than_a_slow_one():
+    slow = sampled(LumaSampler(PARAMS), lambda t: edge(t, 50.0), 0.5)
+    fast = sampled(LumaSampler(PARAMS), lambda t: edge(t, 400.0), 0.5)
+    assert len(fast) > 3 * len(slow)
+    assert len(slow) > 0.5 * 20          # and more than a still scene's floor
+    assert np.diff(fast).min() >= 0.001 - 1e-12     # never above the ceiling
+
+
+def test_bound_holds_on_a_moving_edge():
+    """Between consecutive samples no pixel changes by more than lambda C (on the 1 ms
+    candidates' grid), while the sampler takes far fewer samples than the candidates."""
+    frame_at = lambda t: edge(t, 150.0)   # noqa: E731
+    times = sampled(LumaSampler(PARAMS), frame_at, 0.4)
+    changes = [largest_log_change(frame_at(a), frame_at(b)) for a, b in zip(times, times[1:])]
+    assert max(changes) <= PARAMS.bound * 1.02
+    assert max(changes) >= PARAMS.bound * 0.6       # and it does not oversample
+    assert len(times) < 0.4 * 400
+
+
+def test_fast_motion_is_clamped_to_the_ceiling():
+    # 5 px per ms: the edge crosses the 96 px image in under 17 ms
+    times = sampled(LumaSampler(PARAMS), lambda t: edge(t, 5000.0, width_px=1.0), 0.015)
+    assert np.allclose(np.diff(times), 0.001)
+
+
+def test_samples_taken_anyway_count_and_reset_restarts():
+    s = LumaSampler(PARAMS)
+    still = np.full((4, 4), 100, np.uint8)
+    s.observe(0.0, still)
+    s.observe(0.001, still)                  # a control tick's sample
+    assert s.next_t == pytest.approx(0.001 + 1 / 20)
+    assert not s.due(0.02, 0.001) and s.due(0.0505, 0.001)
+    s.reset()
+    assert s.due(0.0, 0.001) and s.samples == 0
+
+
+# ---------------------------------------------------------------------------- fidelity
+def _events(rows):
+    ev = np.zeros(len(rows), EVENT_DTYPE)
+    for i, (x, y, t, p) in enumerate(rows):
+        ev[i] = (x, y, t, p)
+    return ev
+
+
+def test_fidelity_of_a_stream_against_itself_and_a_shifted_copy():
+    ref = _events([(1, 0, 1_000_000, 1), (1, 0, 5_000_000, 1), (2, 1, 2_000_000, -1),
+                   (0, 2, 3_000_000, 1)])
+    same = compare_streams(ref, ref, (3, 3))
+    assert (same.count_ratio, same.median_time_error_ms, same.matched_fraction) == (1, 0, 1)
+    assert same.count_correlation == pytest.approx(1.0)
+    late = ref.copy()
+    late["t"] += 500_000
+    assert compare_streams(late, ref, (3, 3)).median_time_error_ms == pytest.approx(0.5)
+    half = compare_streams(ref[:2], ref, (3, 3))
+    assert half.count_ratio == 0.5 and half.count_correlation < 0.9
+
+
+def test_time_errors_pair_only_the_same_pixel_and_polarity():
+    ref = _events([(1, 1, 1_000_000, 1), (1, 1, 9_000_000, 1), (1, 1, 4_000_000, -1)])
+    test = _events([(1, 1, 7_000_000, 1), (1, 1, 3_000_000, 1), (0, 0, 1_000_000, 1),
+                    (1, 1, 1_000_000, -1)])
+    err = nearest_time_errors(test, ref, (2, 2))
+    assert err.tolist() == [2e6, 2e6, math.inf, 3e6]
+    f = compare_streams(test, ref, (2, 2), max_match_ms=2.5)
+    assert f.matched_fraction == 0.5 and f.median_time_error_ms == pytest.approx(2.0)
+
+
+def test_count_maps_and_pearson():
+    ev = _events([(0, 0, 1, 1), (0, 0, 2, 1), (1, 0, 3, -1)])
+    maps = count_maps(ev, (1, 2))
+    assert maps.tolist() == [[[2, 0]], [[0, 1]]]
+    assert math.isnan(pearson(np.ones(4), np.arange(4)))
+
+
+# ---------------------------------------------------------------------------- linear hold
+def _ramp_stream(hz: float, hold: str) -> np.ndarray:
+    """A uniform 8 x 8 patch whose log brightness ramps from ln 40 to ln 200 in 0.2 s, then
+    holds, seen at `hz` through the paper's low-pass (no mismatch)."""
+    em = EventEmulator(preset("paper", sigma_thres=0.0, downsample=1.0, blur=False,
+                              lowpass_hold=hold))
+    out = []
+    for i in range(round(0.4 * hz) + 1):
+        t = i / hz
+        level = math.log(40) + (math.log(200) - math.log(40)) * min(t / 0.2, 1.0)
+        out.append(em.step(np.full((8, 8), math.exp(level), np.float32), round(t * 1e9)))
+    return np.concatenate(out)
+
+
+def test_linear_hold_keeps_event_times_when_samples_space_out():
+    """The step hold makes every event early by up to an interval; the linear hold, the
+    exact low-pass of a ramp, comes within a tenth of an interval of the 1 kHz stream's
+    times at 50 Hz (what is left: the crossings placed on a straight line between samples
+    of a curved filtered level)."""
+    figures = {}
+    for hold in ("step", "linear"):
+        ref = _ramp_stream(1000.0, hold)
+        figures[hold] = compare_streams(_ramp_stream(50.0, hold), ref, (8, 8))
+        assert figures[hold].count_ratio == 1.0
+    assert figures["linear"].median_time_error_ms < 2.0     # measured 1.2 ms
+    assert figures["step"].median_time_error_ms > 4 * figures["linear"].median_time_error_ms
+
+
+def test_step_hold_is_the_default_and_unknown_holds_are_refused():
+    assert preset("paper").lowpass_hold == "step"
+    with pytest.raises(ValueError, match="lowpass_hold"):
+        preset("paper", lowpass_hold="cubic")
