@@ -53,6 +53,49 @@ def test_same_seed_same_weights(gain_data, tmp_path):
     assert not all(torch.equal(a[k], c[k]) for k in a)
 
 
+@pytest.mark.parametrize("modality", ["rgb+diff", "rgb+event"])
+def test_frames_in_memory_and_loader_workers_train_the_same_weights(gain_data, tmp_path,
+                                                                   modality):
+    """The input pipeline changes where the frames come from, not what they are: read item by
+    item from the files in the training process, or read whole into memory and served by
+    two forked DataLoader workers, the weights are the same bit for bit."""
+    kw = dict(epochs=2, batch=8, max_frames=64, seed=1, norm=Normalisation(size=32), **QUIET)
+    said = []
+    train(gain_data, tmp_path / "files", "nav", [modality], cache="none", num_workers=0, **kw)
+    train(gain_data, tmp_path / "memory", "nav", [modality], cache="memory", num_workers=2,
+          **dict(kw, log=said.append))
+    a, b = (torch.load(tmp_path / d / f"nav-{modality}.pt", weights_only=True)
+            for d in ("files", "memory"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert any(line.startswith("  frames in memory: ") for line in said), said
+
+
+def test_preload_holds_the_files_values_and_auto_declines_what_does_not_fit(
+        gain_data, tmp_path, monkeypatch):
+    from sebvs.policy import train as train_module
+    eps = load_index(gain_data)
+    norm = Normalisation(size=32)
+    lazy = EpisodeFrames(gain_data, eps, "nav", "rgb+diff", norm)
+    held = EpisodeFrames(gain_data, eps, "nav", "rgb+diff", norm)
+    n = held.preload()
+    assert n >= held.frame_bytes() == 6 * 32 * 32 * 32 * 3     # rgb only: diff reads rgb
+    assert held.open_episodes() == 0                            # the files are released
+    for i in (0, 31, 32, 100, len(lazy) - 1):
+        np.testing.assert_array_equal(lazy[i][0], held[i][0])
+        np.testing.assert_array_equal(lazy[i][1], held[i][1])
+    said = []
+    # both sets' frames against half the available memory
+    monkeypatch.setattr(train_module, "available_memory", lambda: 4 * held.frame_bytes())
+    assert train_module._use_cache("auto", lazy, held, said.append) is True
+    monkeypatch.setattr(train_module, "available_memory", lambda: 3 * held.frame_bytes())
+    assert train_module._use_cache("auto", lazy, held, said.append) is False
+    assert "would take more than 50% of the" in said[0] and "--cache memory" in said[0]
+    with pytest.raises(ValueError, match="unknown cache 'disk'"):
+        train_module._use_cache("disk", lazy, held, said.append)
+    lazy.close()
+    held.close()
+
+
 def test_gated_stem_trains_rgb_event_and_refuses_other_modalities(gain_data, tmp_path):
     kw = dict(epochs=1, batch=8, max_frames=32, norm=Normalisation(size=32), stem="gated",
               **QUIET)

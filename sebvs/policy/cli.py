@@ -14,9 +14,19 @@ def _size(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _workers(text: str) -> int | str:
+    """--workers: a count of 0 or more, or "auto"."""
+    if text == "auto":
+        return text
+    if text.isdigit():
+        return int(text)
+    raise argparse.ArgumentTypeError(f"{text!r}: expected a number of workers (0 or more) "
+                                     f"or auto")
+
+
 def _cmd_train(args) -> int:
     from .inputs import MODALITIES, Normalisation
-    from .train import train
+    from .train import loader_workers, train
     modalities = list(MODALITIES) if args.modality == "all" else [args.modality]
     if args.size >= 640 and args.device == "cpu":
         print(f"sebvs train: note: {args.size} px is the paper's GPU preset; on a 2-core CPU "
@@ -25,7 +35,9 @@ def _cmd_train(args) -> int:
     try:
         train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
               epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
-              num_workers=args.workers, threads=args.threads, val_fraction=args.val_fraction,
+              num_workers=(loader_workers(args.device) if args.workers == "auto"
+                           else args.workers),
+              cache=args.cache, threads=args.threads, val_fraction=args.val_fraction,
               patience=args.patience, lr=args.lr, device=args.device, stem=args.stem,
               norm=Normalisation(size=args.size, event_clip=args.event_clip))
     except (FileNotFoundError, ValueError) as exc:   # bad data or settings: say so, no trace
@@ -103,7 +115,12 @@ def register(subparsers) -> None:
                    help="share of episodes held out (default 0.2)")
     t.add_argument("--event-clip", type=int, default=8,
                    help="event counts saturate here before scaling to [0, 1] (default 8)")
-    t.add_argument("--workers", type=int, default=0, help="DataLoader workers (default 0)")
+    t.add_argument("--workers", type=_workers, default="auto", metavar="N|auto",
+                   help="DataLoader workers (default auto: up to 8 on a GPU, where the CPUs "
+                        "only feed it; 0 on the CPU, where the model wants the cores)")
+    t.add_argument("--cache", choices=["auto", "memory", "none"], default="auto",
+                   help="frames read whole into memory before training (auto: when they "
+                        "fit half the available memory), or from the files item by item")
     t.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's)")
     t.add_argument("--device", default="cpu",
                    help="torch device, e.g. cuda for the paper preset (default cpu; "

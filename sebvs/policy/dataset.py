@@ -14,6 +14,11 @@ released, not closed: h5py's close walks every open HDF5 object of the process, 
 50 ms a call with 512 episodes open (minutes for 3,581). Shuffling every frame of a
 large dataset would then reopen a file per item (about 3 ms), so `EpisodeBlockSampler`
 shuffles episodes into blocks that fit the open set and the frames within each block.
+
+`EpisodeFrames.preload()` reads the streams a modality needs whole into memory instead,
+as the files store them (uint8 frames): one read per episode and stream rather than an
+HDF5 chunk decode per item, the same values, and DataLoader workers forked after it share
+the pages. `train.py` preloads when the frames fit a share of the available memory.
 """
 from __future__ import annotations
 
@@ -122,6 +127,36 @@ def previous_rgb(ep: Episode, t: int) -> np.ndarray:
     return ep.rgb[t]
 
 
+class CachedEpisode:
+    """The streams of one episode a modality reads, whole in memory: ``rgb`` [T, H, W, 3]
+    and ``event_frame`` [T, 2K, H, W] uint8 (None where not read), ``tick`` [T],
+    ``target`` [T, 2|6] float32; the attributes `previous_rgb` and `EpisodeFrames` use."""
+
+    def __init__(self, ep: Episode, streams: tuple[str, ...]):
+        self.path, self.task = ep.path, ep.task
+        self.rgb = ep.rgb[:] if {"rgb", "rgb_prev"} & set(streams) else None
+        self.event_frame = ep.event_frame[:] if "events" in streams else None
+        self.tick = ep.tick[:]
+        self.target = np.asarray(ep.target[:], np.float32)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.rgb, self.event_frame, self.tick, self.target)
+                   if a is not None)
+
+
+def available_memory() -> int:
+    """Bytes this machine can give without swapping (MemAvailable), else its free pages."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
 class EpisodeFrames:
     """A map-style dataset: item i -> (x float32 [C, S, S], y float32 [2] or [6]).
 
@@ -140,6 +175,7 @@ class EpisodeFrames:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
         self.root, self.task, self.modality, self.norm = Path(root), task, modality, norm
         self.files = [e["file"] for e in episodes]
+        self.frame_counts = [int(e["frames"]) for e in episodes]
         pairs = [(ei, t) for ei, e in enumerate(episodes) for t in range(int(e["frames"]))]
         if max_frames and len(pairs) > max_frames:
             pick = np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)
@@ -147,11 +183,43 @@ class EpisodeFrames:
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self._handles: OrderedDict[int, Episode] = OrderedDict()
         self._pid = os.getpid()
+        self._cached: dict[int, CachedEpisode] = {}
 
     def __len__(self) -> int:
         return len(self.pairs)
 
-    def _episode(self, ei: int) -> Episode:
+    def frame_bytes(self) -> int:
+        """What preload() would hold in frames: the used episodes' frames (as the index
+        counts them) of the streams read, sized from the first episode's frame shapes."""
+        used = np.unique(self.pairs[:, 0])
+        if not len(used):
+            return 0
+        ep = self._episode(int(used[0]))
+        streams = set(MODALITY_INPUTS[self.modality])
+        per_frame = int(np.prod(ep.rgb.shape[1:])) if {"rgb", "rgb_prev"} & streams else 0
+        if "events" in streams:
+            per_frame += int(np.prod(ep.event_frame.shape[1:]))
+        return per_frame * sum(self.frame_counts[int(ei)] for ei in used)
+
+    def preload(self, progress: bool = False) -> int:
+        """Read every used episode's streams into memory (CachedEpisode); the bytes held.
+        Items then come from memory; the files are released."""
+        from tqdm import tqdm
+        streams = MODALITY_INPUTS[self.modality]
+        for ei in tqdm(np.unique(self.pairs[:, 0]), desc="frames to memory", unit="episode",
+                       disable=not progress, leave=False):
+            ei = int(ei)
+            if ei not in self._cached:
+                self._cached[ei] = CachedEpisode(self._episode(ei), streams)
+                handle = self._handles.pop(ei, None)
+                if handle is not None:
+                    handle.release()
+        return sum(c.nbytes for c in self._cached.values())
+
+    def _episode(self, ei: int) -> Episode | CachedEpisode:
+        cached = self._cached.get(ei)
+        if cached is not None:
+            return cached
         if self._pid != os.getpid():      # a forked worker: never reuse the parent's handles
             self._handles, self._pid = OrderedDict(), os.getpid()
         ep = self._handles.get(ei)
@@ -202,6 +270,7 @@ class EpisodeFrames:
         for ep in self._handles.values():
             ep.release()
         self._handles = OrderedDict()
+        self._cached = {}
 
     def open_episodes(self) -> int:
         return len(self._handles)

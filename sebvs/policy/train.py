@@ -21,8 +21,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .checkpoint import model_config, save_checkpoint
-from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, dataset_hash,
-                      event_frames_of, load_index, split_episodes)
+from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, available_memory,
+                      dataset_hash, event_frames_of, load_index, split_episodes)
 from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
                      check_modality)
 
@@ -41,6 +41,9 @@ class TrainSettings:
     seed: int = 0
     max_frames: int = 0
     num_workers: int = 0
+    # "auto": the frames in memory when they fit CACHE_SHARE of the available memory;
+    # "memory" always, "none" never (dataset.py, EpisodeFrames.preload)
+    cache: str = "auto"
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
     device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
     stem: str = "patch"           # "patch" (the paper's), "conv", "dual", "gated" (model.STEMS)
@@ -111,6 +114,32 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
     return total / max(n, 1)
 
 
+CACHES = ("auto", "memory", "none")
+CACHE_SHARE = 0.5     # of the available memory that "auto" gives the frames
+
+
+def _use_cache(cache: str, train_set: EpisodeFrames, val_set: EpisodeFrames, log) -> bool:
+    if cache not in CACHES:
+        raise ValueError(f"unknown cache {cache!r} ({', '.join(CACHES)})")
+    if cache != "auto":
+        return cache == "memory"
+    need, free = train_set.frame_bytes() + val_set.frame_bytes(), available_memory()
+    if need <= CACHE_SHARE * free:
+        return True
+    log(f"  frames read from the files: {need / 2**20:,.0f} MiB would take more than "
+        f"{CACHE_SHARE:.0%} of the {free / 2**20:,.0f} MiB available (--cache memory "
+        f"to insist)")
+    return False
+
+
+def loader_workers(device: str, cpus: int | None = None) -> int:
+    """DataLoader workers for "auto": on a GPU the CPUs only feed it, so up to 8 of them
+    (one input-bound GPU epoch halved with 8, docs/scale.md); on the CPU the model's own
+    threads want the cores and frames in memory cost little, so none."""
+    cpus = cpus if cpus is not None else len(os.sched_getaffinity(0))
+    return 0 if device == "cpu" else max(0, min(8, cpus - 1))
+
+
 def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSettings,
                   progress: bool = True, log=print) -> dict:
     """Train one modality; writes its checkpoint, config and loss CSV. Returns the config."""
@@ -131,6 +160,10 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
     val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
     val_set = EpisodeFrames(data, val_eps, s.task, modality, s.norm, val_cap)
+
+    if _use_cache(s.cache, train_set, val_set, log):
+        held = train_set.preload(progress) + val_set.preload(progress)
+        log(f"  frames in memory: {held / 2**20:,.0f} MiB")
 
     prev_threads = torch.get_num_threads()
     prev_det = torch.are_deterministic_algorithms_enabled()
@@ -154,9 +187,11 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         # beyond, shuffled blocks of episodes so that a file is opened once per epoch.
         order = ({"shuffle": True, "generator": gen} if len(train_eps) <= OPEN_EPISODES else
                  {"sampler": EpisodeBlockSampler(train_set.pairs[:, 0], OPEN_EPISODES, gen)})
+        # Workers start afresh every epoch: a persistent loader draws its base seed from
+        # the shuffle's generator once, where one without workers draws it every epoch,
+        # and the second epoch's order would then depend on the worker count.
         train_loader = DataLoader(train_set, batch_size=s.batch, **order,
-                                  num_workers=s.num_workers, collate_fn=_collate,
-                                  persistent_workers=s.num_workers > 0)
+                                  num_workers=s.num_workers, collate_fn=_collate)
         val_loader = DataLoader(val_set, batch_size=s.batch, shuffle=False,
                                 num_workers=s.num_workers, collate_fn=_collate)
         optimizer = torch.optim.Adam(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
