@@ -1,4 +1,5 @@
-"""`sebvs v2e` (offline conversion) and `sebvs events show` (a look at an event file)."""
+"""`sebvs v2e` (offline conversion), `sebvs events show` (a look at an event file) and
+`sebvs events export` (to AEDAT4 or the common HDF5 layout)."""
 from __future__ import annotations
 
 import argparse
@@ -27,10 +28,22 @@ def _cmd_events_show(args) -> int:
     from .render import render_file
     try:
         render_file(args.file, args.out, n=args.frames, window_ms=args.window_ms)
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, ImportError) as exc:      # ImportError: a missing extra
         print(f"sebvs events show: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_events_export(args) -> int:
+    from ..extras import MissingExtra
+    from .export import export_events
+    try:
+        info = export_events(args.file, args.out, args.format, progress=not args.quiet)
+    except (ValueError, OSError, MissingExtra) as exc:
+        print(f"sebvs events export: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(info))
     return 0
 
 
@@ -50,11 +63,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--quiet", action="store_true", help="no progress bar")
     v.set_defaults(func=_cmd_v2e)
 
-    e = sub.add_parser("events", help="event file tools")
+    e = sub.add_parser("events", help="event file tools: show, export",
+                       description="Event files of every layout the project reads: our "
+                                   "HDF5 (sebvs v2e), the common DSEC-style HDF5, AEDAT4 "
+                                   "and episode files with raw events (docs/formats.md).")
     esub = e.add_subparsers(dest="events_cmd", metavar="COMMAND", required=True)
-    s = esub.add_parser("show", help="render a few accumulated frames to a PNG")
-    s.add_argument("file")
+    s = esub.add_parser("show", help="render a few accumulated frames to a PNG",
+                        description="Render a few accumulated event frames (ON blue, OFF "
+                                    "red) of an event file to a PNG; the file's layout is "
+                                    "read from its content.")
+    s.add_argument("file", help="event file: .h5 (ours or DSEC-style), .aedat4, or an "
+                                "episode .h5 with raw events")
     s.add_argument("--out", required=True, help="PNG file")
     s.add_argument("--frames", type=int, default=6)
     s.add_argument("--window-ms", type=float, default=33.0)
     s.set_defaults(func=_cmd_events_show)
+    x = esub.add_parser("export", help="write an event file as AEDAT4 or common HDF5",
+                        description="Write the events of FILE (any layout `events show` "
+                                    "reads) as AEDAT4 through dv-processing, for DV and "
+                                    "the iniVation tools, or as HDF5 in the common "
+                                    "DSEC-style layout: events/x, y (uint16), t (uint32 us "
+                                    "from the dataset t_offset), p (uint8 1 = ON, 0 = OFF) "
+                                    "and ms_to_idx, gzip-compressed. Both keep "
+                                    "microseconds: nanosecond timestamps (episodes) are "
+                                    "floored. Prints a JSON summary; exit 2 on an "
+                                    "unreadable input or an unwritable output. AEDAT4 "
+                                    "needs pip install 'sebvs[formats]'.")
+    x.add_argument("file", help="event file or episode with raw events")
+    x.add_argument("--out", required=True, help="output file (.aedat4 or .h5)")
+    x.add_argument("--format", choices=("aedat4", "h5"), default=None,
+                   help="output format (default: from the --out suffix)")
+    x.add_argument("--quiet", action="store_true", help="no progress bar")
+    x.set_defaults(func=_cmd_events_export)

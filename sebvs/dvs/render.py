@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from .accumulator import EventAccumulator, EventGeometry
-from .h5io import read_events
+from .eventfile import read_events
 
 
 def event_image(counts: np.ndarray) -> np.ndarray:
