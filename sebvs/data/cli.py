@@ -17,6 +17,22 @@ def _compare(args) -> int:
     return cmd_compare(args)
 
 
+def _export(args) -> int:
+    import json
+    import sys
+
+    from ..extras import MissingExtra
+    from .export_mcap import export_mcap
+    try:
+        info = export_mcap(args.dataset, args.out, progress=not args.quiet,
+                           compression=args.compression)
+    except (ValueError, OSError, MissingExtra) as exc:
+        print(f"sebvs data export: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(info))
+    return 0
+
+
 def _record(args) -> int:
     from .record import cmd_record
     return cmd_record(args)
@@ -44,7 +60,7 @@ def add_fanout_arguments(parser, what: str) -> None:
 
 
 def register(sub) -> None:
-    d = sub.add_parser("data", help="dataset tools: check, stats, compare",
+    d = sub.add_parser("data", help="dataset tools: check, stats, compare, export",
                        description="Inspect recorded datasets (one HDF5 file per episode "
                                    "plus index.json).")
     dsub = d.add_subparsers(dest="data_cmd", metavar="SUBCOMMAND", required=True)
@@ -78,6 +94,32 @@ def register(sub) -> None:
                    help="differences shown per episode (default 10)")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=_compare)
+    x = dsub.add_parser("export", help="write episodes as ROS 2 bags (MCAP)",
+                        description="Write each episode as one MCAP file of ROS 2 messages "
+                                    "that Foxglove and `ros2 bag` open: the RGB frames "
+                                    "(sensor_msgs/Image on /camera/image_raw), the raw "
+                                    "events (event_camera_msgs/EventPacket, mono encoding, "
+                                    "on /events) and event frames (/events/frame, "
+                                    "/events/image) where the episode has them, the "
+                                    "commands (nav: geometry_msgs/Twist on /cmd_vel in m/s "
+                                    "and rad/s; arm: geometry_msgs/PoseStamped on "
+                                    "/cmd_pose) and the true poses on /tf. Messages are "
+                                    "stamped with the simulation time. Prints a JSON "
+                                    "summary; exit 2 when DATASET is not a dataset or an "
+                                    "episode, or OUT cannot be written. Needs pip install "
+                                    "'sebvs[formats]' (docs/formats.md).")
+    x.add_argument("dataset", metavar="DATASET",
+                   help="dataset directory (index.json) or one episode .h5 file")
+    x.add_argument("--format", choices=("mcap",), default="mcap",
+                   help="output format (default mcap: ROS 2 messages, CDR)")
+    x.add_argument("--out", metavar="FILE_OR_DIR", default=None,
+                   help="a dataset exports into this folder (default DATASET/mcap/, one "
+                        "episode_NNNN.mcap per episode); one episode into this file, or "
+                        "into this folder as <episode>.mcap (default: beside it)")
+    x.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                   help="MCAP chunk compression (default zstd; every MCAP reader has it)")
+    x.add_argument("--quiet", action="store_true", help="no progress bar")
+    x.set_defaults(func=_export)
 
     r = sub.add_parser("record", help="record expert demonstrations into a dataset",
                        description="Run a recording topology until its recorder has "
