@@ -23,15 +23,30 @@ about 1.5 s, paid once per worker) weighs on them; `--size paper` records issue 
 yardstick instead, the paper's nav set of 70 episodes of 30 s (about 6 min at one worker
 here), where it is amortised as in a real recording (record only: `--jobs record`).
 
-Targets (issue 17): speed-up at 2 workers >= 1.7x on a 2-core machine, >= 0.8 x workers on
-16 cores; Ray's overhead per episode < 5 % of an episode's wall time.
+startup  where a worker's time goes before and between its episodes (issue 37), from one
+         `sebvs record --workers W` per worker count (3 episodes per worker): the driver
+         (command start to the first worker's actors spawned: the CLI's imports, the pool,
+         the topology's load), then per worker from its run.json: actors (spawned to all
+         ready: each actor's imports, MuJoCo compile, GL context, in parallel processes),
+         clock (ready to the clock's start), first episode (clock start to its file),
+         episodes after (the gaps between a worker's later episode files); medians over
+         workers and repeats. `per_worker_startup_s` = actors + clock. Beside it, the
+         pieces timed one after the other in one fresh process (`components`): the imports
+         in four groups (the runtime; mujoco and the scenes; OpenCV, h5py and the
+         emulator; torch, which only a policy imports), the nav scene's MuJoCo compile, a
+         GL context with its first 160 px render.
 
-    tools/bench_scale.py [--quick | --size paper] [--jobs eval,record] [--repeats N]
+Targets (issue 17): speed-up at 2 workers >= 1.7x on a 2-core machine, >= 0.8 x workers on
+16 cores; Ray's overhead per episode < 5 % of an episode's wall time. Issue 37: per-worker
+start-up <= 1 s at 2 workers here.
+
+    tools/bench_scale.py [--quick | --size paper] [--jobs eval,record,startup] [--repeats N]
                          [--json FILE] [--no-ray]
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import statistics
@@ -94,6 +109,93 @@ def record_cmd(out: Path, episodes: int, episode_s: float, fanout: list[str]) ->
             "--episodes", str(episodes), "--out", str(out), "--runs-dir",
             str(out.parent / "runs"), "--quiet", "--set", f"sim.episode_s={episode_s}",
             *fanout]
+
+
+COMPONENTS_PROBE = r"""
+import json, os, sys, time
+t = {}
+t0 = time.perf_counter()
+import sebvs.runtime.worker, sebvs.runtime.node  # noqa  (numpy, zmq, msgpack)
+t["import_runtime_s"] = time.perf_counter() - t0
+t0 = time.perf_counter()
+import mujoco, sebvs.sim  # noqa
+t["import_mujoco_sim_s"] = time.perf_counter() - t0
+t0 = time.perf_counter()
+import cv2, sebvs.dvs.emulator, sebvs.data.episode  # noqa  (OpenCV, h5py)
+t["import_dvs_data_s"] = time.perf_counter() - t0
+t0 = time.perf_counter()
+import torch  # noqa  (the policy's only: a recording imports none)
+t["import_torch_s"] = time.perf_counter() - t0
+from sebvs.sim import make_scene
+from sebvs.sim.render import FrameRenderer
+t0 = time.perf_counter()
+model = make_scene("nav", width=160, height=160).compile()
+data = mujoco.MjData(model)
+mujoco.mj_forward(model, data)
+t["mujoco_compile_s"] = time.perf_counter() - t0
+t0 = time.perf_counter()
+renderer = FrameRenderer(model, 160, 160)
+renderer.update(data, "front")
+renderer.rgb()
+t["gl_context_first_render_s"] = time.perf_counter() - t0
+print(json.dumps(t))
+"""
+
+
+def components() -> dict:
+    """imports, MuJoCo compile, GL context + first render, in one fresh process."""
+    out = subprocess.run([sys.executable, "-c", COMPONENTS_PROBE], cwd=ROOT, text=True,
+                         capture_output=True, timeout=300,
+                         env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")))
+    if out.returncode:
+        raise RuntimeError(f"components probe failed:\n{out.stderr[-2000:]}")
+    return {k: round(v, 3) for k, v in json.loads(out.stdout.splitlines()[-1]).items()}
+
+
+def startup_run(workers: int, per_worker: int, episode_s: float, tmp: Path) -> dict:
+    """One `sebvs record --workers W`: the driver, and per worker actors / clock / first
+    episode / episodes after, in seconds (see the module's docstring)."""
+    from sebvs.scale import split_episodes
+    where = Path(tempfile.mkdtemp(prefix=f"startup-{workers}-", dir=tmp))
+    n = per_worker * workers
+    t0 = time.time()
+    subprocess.run(record_cmd(where / "data", n, episode_s, ["--workers", str(workers)]),
+                   cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+    infos = [json.loads(p.read_text()) for p in (where / "runs").glob("*/run.json")]
+    if len(infos) != workers:
+        raise RuntimeError(f"{len(infos)} run.json files for {workers} workers")
+    done = {int(p.stem.split("_")[1]): p.stat().st_mtime
+            for p in (where / "data").glob("episode_*.h5")}
+    clocks = sorted(i["clock_started_at"] for i in infos)
+    shards = [sorted(done[k] for k in range(a, b)) for a, b in split_episodes(0, n, workers)]
+    # the worker whose clock started k-th finished its first episode k-th: pair them so
+    firsts = sorted(s[0] for s in shards)
+    return {
+        "driver_s": min(i["spawned_at"] for i in infos) - t0,
+        "actors_s": [max(i["ready_at"].values()) - i["spawned_at"] for i in infos],
+        "clock_s": [i["clock_started_at"] - max(i["ready_at"].values()) for i in infos],
+        "first_episode_s": [f - c for f, c in zip(firsts, clocks)],
+        "episode_after_s": [b - a for s in shards for a, b in zip(s, s[1:])],
+    }
+
+
+def bench_startup(counts: list[int], per_worker: int, episode_s: float, repeats: int,
+                  tmp: Path) -> dict:
+    runs = {w: [] for w in counts}
+    for r in range(repeats):
+        for w in (counts if r % 2 == 0 else counts[::-1]):
+            runs[w].append(startup_run(w, per_worker, episode_s, tmp))
+            print(f"startup repeat {r + 1}/{repeats}, {w} workers: per worker "
+                  f"{statistics.median(runs[w][-1]['actors_s']):.2f} s to ready",
+                  file=sys.stderr, flush=True)
+    rows = []
+    for w, rs in runs.items():
+        med = {k: round(statistics.median(
+            v for r in rs for v in (r[k] if isinstance(r[k], list) else [r[k]])), 3)
+            for k in rs[0]}
+        rows.append({"workers": w, "episode_s": episode_s, **med,
+                     "per_worker_startup_s": round(med["actors_s"] + med["clock_s"], 3)})
+    return {"job": "startup", "rows": rows, "components": components()}
 
 
 def ray_start_s() -> float | None:
@@ -168,8 +270,8 @@ def main() -> int:
                     help="episodes per job: default 4 per eval run and 8 recorded, 4 s each; "
                          "paper: 70 recorded of 30 s (issue 18's nav set; the eval job "
                          "keeps the default size)")
-    ap.add_argument("--jobs", default="eval,record",
-                    help="which jobs, comma-separated (eval, record; default both)")
+    ap.add_argument("--jobs", default="eval,record,startup",
+                    help="which jobs, comma-separated (eval, record, startup; default all)")
     ap.add_argument("--repeats", type=int, default=0,
                     help="runs per worker count, median reported (default 1 quick, else 3)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
@@ -177,9 +279,9 @@ def main() -> int:
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
     jobs = [j for j in args.jobs.split(",") if j]
-    unknown = [j for j in jobs if j not in ("eval", "record")]
+    unknown = [j for j in jobs if j not in ("eval", "record", "startup")]
     if unknown or not jobs:
-        ap.error(f"--jobs: {', '.join(unknown) or 'none'}: give eval, record or both")
+        ap.error(f"--jobs: {', '.join(unknown) or 'none'}: give eval, record, startup")
     if args.quick and args.size != "default":
         ap.error("--quick and --size: give one")
     size = SIZES["quick" if args.quick else args.size]
@@ -209,6 +311,13 @@ def main() -> int:
             eps, episode_s = size["record"]
             report["jobs"].append(bench_job("record", record_cmd, eps, eps, episode_s,
                                             counts, repeats, tmp, ray))
+        if "startup" in jobs:
+            report["jobs"].append(bench_startup(counts, 3, size["record"][1], repeats, tmp))
+            rows = {r["workers"]: r for r in report["jobs"][-1]["rows"]}
+            if 2 in rows:
+                got = rows[2]["per_worker_startup_s"]
+                report.setdefault("targets", {})["per_worker_startup_s at 2 workers"] = {
+                    "target": 1.0, "got": got, "met": got <= 1.0}
     print_report(report, args.json)
     return 0
 

@@ -369,6 +369,10 @@ class Supervisor:
                 if m != name:   # logs/<actor>.log stays a name to read an actor's log by
                     (self.rundir / "logs" / f"{m}.log").symlink_to(f"{name}.log")
         self.status = "starting"
+        # when the actors were started and when each said it was ready (unix seconds:
+        # a pool's driver compares them with its own clock; tools/bench_scale.py)
+        self.info["spawned_at"] = time.time()
+        self.info["ready_at"] = {}
         for p in self.procs.values():
             self._spawn(p)
         self._write_info()
@@ -389,6 +393,7 @@ class Supervisor:
             self.echo(f"sebvs: host {self.host!r} ready; the primary "
                       f"({self.topo.primary!r}) starts the clock")
         self.status = "running"
+        self.info["clock_started_at"] = time.time()
         self.stalls = StallWatch({(a.name, i.name): (i.producer, i.output)
                                   for a in self.topo.active.values() if a.name in self.specs
                                   for i in a.inputs.values() if i.producer in self.specs})
@@ -535,6 +540,7 @@ class Supervisor:
                 actor = msg.get("actor") if isinstance(msg, dict) else None
                 p = self.proc_of.get(actor) if isinstance(actor, str) else None
                 if p is not None and msg.get("event") == "ready":
+                    self.info.setdefault("ready_at", {})[actor] = time.time()
                     p.ready_members.add(actor)
                     p.ready = len(p.ready_members) == len(p.members)
                     ready.append(actor)
