@@ -3,6 +3,7 @@ writes the same results.json; failed workers are retried, then named; a dead dri
 finished episodes are adopted; Ray is optional."""
 import importlib.util
 import json
+import os
 import shutil
 import sys
 from dataclasses import dataclass
@@ -274,3 +275,17 @@ def test_a_recording_into_a_dataset_plays_on_with_the_seeds_episodes(tmp_path):
     assert result.identical and len(result.same) == 5, result.different
     seeds = [e["seed"] for e in DatasetIndex(tmp_path / "parts").episodes()]
     assert len(set(seeds)) == 5
+
+
+def test_workers_auto_is_the_cpus_this_process_may_use(monkeypatch):
+    import argparse
+
+    from sebvs.data.cli import workers_arg
+    monkeypatch.delenv("SEBVS_CPUS", raising=False)
+    assert workers_arg("auto") == len(os.sched_getaffinity(0))
+    monkeypatch.setenv("SEBVS_CPUS", "3")         # a pool's share of the machine
+    assert workers_arg("auto") == 3
+    assert workers_arg("4") == 4
+    for bad in ("0", "-1", "two", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected a number of workers"):
+            workers_arg(bad)

@@ -38,15 +38,28 @@ def _record(args) -> int:
     return cmd_record(args)
 
 
+def workers_arg(text: str) -> int:
+    """--workers: a positive count, or "auto" (the CPUs this process may use)."""
+    import argparse
+    if text == "auto":
+        from sebvs.runtime.topology import run_cpus
+        return run_cpus()
+    if text.isdigit() and int(text) >= 1:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"{text!r}: expected a number of workers (1 or more) "
+                                     f"or auto")
+
+
 def add_fanout_arguments(parser, what: str) -> None:
     """--workers, --ray and --max-attempts of `sebvs record` and `sebvs eval` (docs/scale.md)."""
     parser.add_argument(
-        "--workers", type=int, default=None, metavar="N",
+        "--workers", type=workers_arg, default=None, metavar="N|auto",
         help=f"run the {what} on N worker processes at once, each its own topology run "
              f"(own run directory and sockets) playing a contiguous range of episodes; "
              f"episode k is seeded from (topology seed, k) whatever the split, so any N "
-             f"gives the same results (default 1: one run, as without the flag; with "
-             f"--ray: tasks in flight, default one per CPU of this machine)")
+             f"gives the same results; auto: one per CPU this process may use (default "
+             f"1: one run, as without the flag; with --ray: tasks in flight, default one "
+             f"per CPU of this machine)")
     parser.add_argument(
         "--ray", nargs="?", const="", default=None, metavar="ADDRESS",
         help="run the workers as Ray tasks: on the cluster at ADDRESS (e.g. "
