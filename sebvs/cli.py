@@ -11,7 +11,8 @@ import sys
 import tomllib
 
 # subcommand modules with a `register(subparsers)`; each adds its own commands
-PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli")
+PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli",
+           "sebvs.view.cli")
 
 
 def _seconds(text: str) -> float:
