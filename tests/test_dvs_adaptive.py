@@ -117,6 +117,27 @@ def test_samples_taken_anyway_count_and_reset_restarts():
     assert s.due(0.0, 0.001) and s.samples == 0
 
 
+def test_samples_between_candidates_follow_the_rule_exactly():
+    """Rendering between 10 ms candidates (pending_before) gives the intervals the rule
+    asks for, not the candidates' grid, and no sample twice."""
+    frame_at = lambda t: edge(t, 400.0, shape=(4, 256))   # noqa: E731
+    s = LumaSampler(PARAMS)
+    times = []
+    for i in range(41):
+        t = i * 0.01
+        while (ts := s.pending_before(t)) is not None:
+            s.observe(ts, frame_at(ts))
+            times.append(ts)
+        if s.due(t):
+            s.observe(t, frame_at(t))
+            times.append(t)
+    gaps = np.diff(times)
+    assert (gaps > 0).all() and len(times) > 2 * 41      # ~4.5 ms intervals
+    changes = [largest_log_change(frame_at(a), frame_at(b)) for a, b in zip(times, times[1:])]
+    assert max(changes[2:]) == pytest.approx(PARAMS.bound, rel=0.05)   # after the start
+    assert LumaSampler(PARAMS).pending_before(1.0) is None    # nothing before a first sample
+
+
 # ---------------------------------------------------------------------------- fidelity
 def _events(rows):
     ev = np.zeros(len(rows), EVENT_DTYPE)

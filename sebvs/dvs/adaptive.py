@@ -20,10 +20,13 @@ is the frame's quantisation, not motion, and does not count (`quantum_dn`): with
 still scene whose dark pixels flicker by one DN (0.15 log units below 20 DN) would be
 sampled at the rate of its own rounding. A still scene asks for the floor rate.
 
-The samples a caller can take come at fixed candidate times (the sim's states, every
-1 / render_hz): `due(t, period)` says whether the candidate at t is the last one before the
-next sample time, so the bound holds on the candidates' grid. Samples taken for another
-reason (the control ticks, which always get one) are observed like the others.
+A caller that samples only at fixed candidate times (the sim's states, every
+1 / render_hz) asks `due(t, period)`: whether the candidate at t is the last one before the
+next sample time, so the bound holds on the candidates' grid. One that can render between
+candidates (the camera, at poses interpolated between the sim's states) asks
+`pending_before(t)` for the sample times before the next candidate and renders each.
+Samples taken for another reason (the control ticks, which always get one) are observed
+like the others.
 
     sampler = LumaSampler(SamplerParams(fraction=0.5, threshold=0.3, floor_hz=20,
                                         ceiling_hz=1000))
@@ -132,6 +135,18 @@ class LumaSampler:
         later: yes when that one would be past the next sample time (so no interval
         outgrows the bound on the candidates' grid), or when t is already past it."""
         return t + period > self.next_t + _TIME_TOLERANCE_S
+
+    def pending_before(self, t: float) -> float | None:
+        """The next sample time if it comes before the candidate at `t`, else None. A caller
+        that can render between candidates (at poses interpolated between two states)
+        renders and observes it, then asks again:
+
+            while (ts := sampler.pending_before(t)) is not None:
+                sampler.observe(ts, render_at(ts))
+        """
+        if self.t_last is None or not self.next_t < t - _TIME_TOLERANCE_S:
+            return None
+        return self.next_t
 
     def observe(self, t: float, frame: np.ndarray) -> float:
         """A sample taken at `t`: 8-bit luma (uint8 (H, W)) or log brightness (float
