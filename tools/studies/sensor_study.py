@@ -1,0 +1,244 @@
+#!/usr/bin/env python3
+"""The sensor study of issue 38, as docs/study_sensors_plan.md fixes it: every recording,
+training, evaluation and reading of the plan, in its order, resumable.
+
+    tools/studies/sensor_study.py plan                 # every command, nothing run
+    tools/studies/sensor_study.py run [--steps record,train,eval,read] [--only nav10,arm30]
+    tools/studies/sensor_study.py status               # what is done, what is left
+
+The commands are built from the plan's tables below (PLAN_*), which must say what the
+plan says; nothing here chooses anything. `run` skips what is already done, so a session
+that ends mid-study loses at most the step in flight:
+
+record  a dataset whose index holds the planned episode count is done; a shorter one is
+        extended (`sebvs record` resumes its numbering) by the episodes missing
+train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
+eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
+        the finished runs of an interrupted one)
+read    tools/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
+        rule, into OUT/read/<task><rate>.json and .png
+
+Trainings run two at a time (--parallel, one thread each, as the recipe says);
+recordings and evaluations use --workers (default 2). Output under --out (default
+out/study_sensors) and the datasets under datasets/.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+PLAN_FILE = "docs/study_sensors_plan.md"
+
+# ------------------------------------------------------------------ the plan, as written
+PHYS = ['camera.sensor="physical"', 'emulator.preset="physical"']
+RANDOMISE = {
+    "nav": ('sim.randomise={variant=["indoor","outdoor"], lighting=["nominal","nominal",'
+            '"low","dusk","hdr","flicker"], flicker_hz={uniform=[5.0,20.0]}, '
+            'target_speed=["slow","nominal","nominal","fast"]}'),
+    "arm": ('sim.randomise={conveyor=["static","moving"], belt_speed=[0.08,0.15,0.25], '
+            'objects=[1,3], lighting=["nominal","nominal","low","dusk","hdr","flicker"], '
+            'flicker_hz={uniform=[5.0,20.0]}}'),
+}
+RATE_SETS = {10: [], 30: ["sim.control_hz=30.0", "sim.render_hz=120.0", "camera.dvs_hz=120.0",
+                          "sim.physics_hz=1080.0",
+                          "accumulator.window_s=0.03333333333333333"]}
+PLAN_RECORDINGS = {  # (task, rate) -> topology seed, episodes, extra sets
+    ("nav", 10): (20, 120, ["sim.episode_s=20.0"]),
+    ("nav", 30): (21, 120, ["sim.episode_s=20.0"]),
+    ("arm", 10): (22, 1500, []),
+    ("arm", 30): (23, 1500, []),
+}
+TOPOLOGY = {"nav": "topologies/nav_record.toml", "arm": "topologies/arm_record.toml"}
+RECIPE = {
+    "nav": ["--epochs", "10", "--patience", "3", "--stem", "conv", "--lr", "5e-4"],
+    "arm": ["--epochs", "16", "--stem", "conv", "--lr", "5e-4"],
+}
+PLAN_SEEDS = {  # rate -> modality -> training seeds
+    10: {"rgb+event": (0, 1, 2), "rgb+diff": (0, 1, 2), "rgb": (0, 1, 2), "event": (0,)},
+    30: {"rgb+event": (0, 1, 2), "rgb+diff": (0, 1, 2), "rgb": (0,), "event": (0,)},
+}
+TEST_SEED = {"nav": 100_100, "arm": 100_200}
+EPISODES_PER_CELL = 30
+# (name, conditions, scenarios): nav runs as two evaluations, flicker indoors only
+EVAL_GROUPS = {
+    "nav": [("main", "nominal_physical,hdr,dusk,dusk_fast", "indoor,outdoor"),
+            ("flicker", "flicker_100,flicker_120", "indoor")],
+    "arm": [("main", "nominal_physical,fast_physical,hdr,dusk_moving", "single,multi")],
+}
+EVAL_SETS = {"nav": ["sim.episode_s=10"], "arm": []}
+READ_RULE = ["--a", "rgb+event", "--b", "rgb+diff", "--min-diff", "10", "--min-ahead", "3"]
+READ_METRIC = {"nav": "strict_success", "arm": None}   # arm: the task's first, grasp
+
+
+@dataclass(frozen=True)
+class Step:
+    kind: str           # record | train | eval | read
+    label: str
+    argv: tuple[str, ...]
+    done: Path          # exists (and is complete) when the step is done
+    want: int = 0       # record: the episodes the dataset must hold
+
+
+def sets(values: list[str]) -> list[str]:
+    return [a for v in values for a in ("--set", v)]
+
+
+def dataset_dir(task: str, rate: int) -> Path:
+    return ROOT / "datasets" / f"study_{task}{rate}"
+
+
+def checkpoint_dir(out: Path, task: str, rate: int, seed: int) -> Path:
+    return out / "checkpoints" / f"{task}{rate}" / f"seed{seed}"
+
+
+def eval_dir(out: Path, task: str, rate: int, seed: int, group: str) -> Path:
+    return out / "eval" / f"{task}{rate}" / f"seed{seed}" / group
+
+
+def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
+    """Every step of the plan, in its order: recordings, trainings, evaluations, readings."""
+    sebvs = [sys.executable, "-m", "sebvs.cli"]
+    keys = [(t, r) for t in ("nav", "arm") for r in (10, 30)
+            if cells is None or f"{t}{r}" in cells]
+    steps = []
+    for task, rate in keys:
+        seed, episodes, extra = PLAN_RECORDINGS[(task, rate)]
+        data = dataset_dir(task, rate)
+        steps.append(Step("record", f"record {task} {rate} Hz", tuple(
+            sebvs + ["record", TOPOLOGY[task], "--episodes", str(episodes), "--out", str(data),
+                     "--workers", str(workers), "--quiet",
+                     *sets([*extra, f"topology.seed={seed}", *PHYS, *RATE_SETS[rate],
+                            RANDOMISE[task]])]), data / "index.json", episodes))
+    for task, rate in keys:
+        for modality, seeds in PLAN_SEEDS[rate].items():
+            for seed in seeds:
+                ckpt = checkpoint_dir(out, task, rate, seed)
+                steps.append(Step("train", f"train {task} {rate} Hz {modality} seed {seed}", tuple(
+                    sebvs + ["train", "--task", task, "--modality", modality, "--data",
+                             str(dataset_dir(task, rate)), "--out", str(ckpt), "--seed",
+                             str(seed), "--threads", "1", "--no-progress", *RECIPE[task]]),
+                    ckpt / f"{task}-{modality}.pt"))
+    for task, rate in keys:
+        seeds = sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss})
+        for seed in seeds:
+            modalities = [m for m, ss in PLAN_SEEDS[rate].items() if seed in ss]
+            # the expert and no-action rows do not depend on a training seed: seed 0's run
+            rows = [] if seed == 0 else ["--no-expert", "--no-baseline"]
+            rate_args = [] if rate == 10 else ["--control-hz", str(rate)]
+            for group, conditions, scenarios in EVAL_GROUPS[task]:
+                d = eval_dir(out, task, rate, seed, group)
+                steps.append(Step("eval", f"eval {task} {rate} Hz seed {seed} {group}", tuple(
+                    sebvs + ["eval", "--task", task, "--modalities", ",".join(modalities),
+                             "--checkpoints", str(checkpoint_dir(out, task, rate, seed)),
+                             "--split", "test", "--seed", str(TEST_SEED[task]),
+                             "--episodes", str(EPISODES_PER_CELL), "--conditions", conditions,
+                             "--scenarios", scenarios, *rate_args, *rows,
+                             "--workers", str(workers), "--out", str(d),
+                             *sets(EVAL_SETS[task])]), d / "results.json"))
+    for task, rate in keys:
+        runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
+                for g, _, _ in EVAL_GROUPS[task]]
+        metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
+        read = out / "read" / f"{task}{rate}"
+        steps.append(Step("read", f"read {task} {rate} Hz", tuple(
+            [sys.executable, str(ROOT / "tools" / "seed_table.py"), *runs, *READ_RULE, *metric,
+             "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
+            read.with_suffix(".json")))
+    return steps
+
+
+def recorded(index: Path) -> int:
+    try:
+        return len(json.loads(index.read_text())["episodes"])
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
+def is_done(step: Step) -> bool:
+    if step.kind == "record":
+        return recorded(step.done) >= step.want
+    return step.done.exists()
+
+
+def command_of(step: Step) -> list[str]:
+    """The step's argv, a recording shortened to the episodes still missing."""
+    argv = list(step.argv)
+    if step.kind == "record":
+        argv[argv.index("--episodes") + 1] = str(step.want - recorded(step.done))
+    return argv
+
+
+def run_step(step: Step, log: Path) -> tuple[Step, int, float]:
+    t0 = time.monotonic()
+    argv = command_of(step)
+    with log.open("a") as f:
+        f.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n")
+        f.flush()
+        code = subprocess.run(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT).returncode
+        f.write(f"=== exit {code} after {time.monotonic() - t0:.0f} s\n")
+    return step, code, time.monotonic() - t0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    ap.add_argument("action", choices=["plan", "run", "status"])
+    ap.add_argument("--steps", default="record,train,eval,read",
+                    help="which kinds of step, comma-separated (default all, in order)")
+    ap.add_argument("--only", default=None, metavar="CELLS",
+                    help="task and rate, comma-separated: nav10, nav30, arm10, arm30")
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
+    args = ap.parse_args()
+    kinds = args.steps.split(",")
+    cells = set(args.only.split(",")) if args.only else None
+    known = {f"{t}{r}" for t in ("nav", "arm") for r in (10, 30)}
+    if cells and cells - known:
+        ap.error(f"--only: unknown {', '.join(sorted(cells - known))} (known: "
+                 f"{', '.join(sorted(known))})")
+    if set(kinds) - {"record", "train", "eval", "read"}:
+        ap.error("--steps: give record, train, eval, read")
+    steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
+    if args.action == "plan":
+        for s in steps:
+            print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
+        return 0
+    if args.action == "status":
+        for kind in kinds:
+            mine = [s for s in steps if s.kind == kind]
+            done = [s for s in mine if is_done(s)]
+            print(f"{kind:>6}: {len(done)}/{len(mine)} done"
+                  + "".join(f"\n        left: {s.label}" for s in mine if not is_done(s)))
+        return 0
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = args.out / "log.txt"
+    print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
+    for kind in kinds:
+        todo = [s for s in steps if s.kind == kind and not is_done(s)]
+        parallel = args.parallel if kind == "train" else 1
+        with ThreadPoolExecutor(parallel) as pool:
+            futures = [pool.submit(run_step, s, log) for s in todo]
+            for future in as_completed(futures):
+                step, code, took = future.result()
+                state = "done" if code == 0 and is_done(step) else f"FAILED (exit {code})"
+                print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
+                if state != "done":
+                    for other in futures:
+                        other.cancel()           # the ones not started; running ones end
+                    print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
+                    return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
