@@ -37,7 +37,8 @@ if str(ROOT) not in sys.path:
 from sebvs.runtime.supervisor import free_port_block  # noqa: E402
 
 CHROMIUM = ("/usr/lib/chromium/chromium", "chromium", "chromium-browser", "google-chrome")
-# what the brief asks of a headless browser on a box without network, plus software GL
+# a headless browser on a box without network. WebGL2 comes from SwiftShader: Chromium
+# 156 falls back to it even without the last two flags (tried), older ones need them
 BROWSER_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                 "--no-first-run", "--disable-background-networking",
                 "--disable-component-update", "--disable-sync", "--window-size=1400,900",
@@ -80,6 +81,7 @@ class WebDriver:
 
     def __init__(self, port: int, browser: str, profile: Path) -> None:
         self.base = f"http://127.0.0.1:{port}"
+        self.session = ""
         self.proc = subprocess.Popen([shutil.which("chromedriver") or "chromedriver",
                                       f"--port={port}"], stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL)
@@ -96,8 +98,12 @@ class WebDriver:
                 "goog:chromeOptions": {"binary": browser,
                                        "args": BROWSER_ARGS + [f"--user-data-dir={profile}"]},
                 "goog:loggingPrefs": {"browser": "ALL"}}
-        self.session = self._call("POST", "/session",
-                                  {"capabilities": {"alwaysMatch": caps}})["sessionId"]
+        try:
+            self.session = self._call("POST", "/session",
+                                      {"capabilities": {"alwaysMatch": caps}})["sessionId"]
+        except OSError:
+            self.proc.terminate()
+            raise
 
     def _call(self, method: str, path: str, body: dict | None = None):
         data = None if body is None else json.dumps(body).encode()
@@ -126,13 +132,14 @@ class WebDriver:
 
 def check(episode: Path, out: Path, wait_s: float) -> dict:
     ports = free_port_block(3)
+    profile = Path(tempfile.mkdtemp(prefix="view-web-check-"))
+    summary_json = profile / "summary.json"
     view = subprocess.Popen([sys.executable, "-m", "sebvs.cli", "view", str(episode),
                              "--serve", "--grpc-port", str(ports), "--web-port",
-                             str(ports + 1)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+                             str(ports + 1), "--json", str(summary_json)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     result: dict = {"episode": str(episode)}
     driver = None
-    profile = Path(tempfile.mkdtemp(prefix="view-web-check-"))
     try:
         url, summary = None, []
         for line in view.stdout:
@@ -144,9 +151,7 @@ def check(episode: Path, out: Path, wait_s: float) -> dict:
         if url is None:
             raise SystemExit("sebvs view --serve did not start:\n" + "\n".join(summary))
         result["url"] = url
-        result["entities"] = [l.split()[0] for l in summary
-                              if l and l.split()[0].count("/") and not l.startswith("view")
-                              and "web viewer" not in l]
+        result["entities"] = json.loads(summary_json.read_text())["entities"]
         driver = WebDriver(ports + 2, find_browser(), profile)
         t0 = time.monotonic()
         driver.cmd("POST", "/url", {"url": url})
