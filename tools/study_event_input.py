@@ -33,7 +33,8 @@ input). Nothing is chosen here: the variants, seeds, recipe and test seed are fi
 before the run.
 
 Every step is skipped when its output is complete, so an interrupted study resumes.
-Writes OUT/study.json, OUT/study.md and OUT/study.png. The two studies of docs/results.md:
+Writes OUT/study.json, OUT/study.md and OUT/study.png. The two studies of
+docs/results/nav_event_input_study.md:
 
     tools/study_event_input.py --variants 0.05,0.1,0.2,0.4 --eval-seed 100004 \
         --out out/study_event_window

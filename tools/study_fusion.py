@@ -28,7 +28,7 @@ Nothing is chosen here: arms, seeds, recipe and test seed are fixed before the r
 step is skipped when its output is complete, so an interrupted study resumes. Writes
 OUT/study.json, OUT/study.md and OUT/study.png.
 
-    tools/study_fusion.py --eval-seed 100006 --out out/study_fusion     # docs/results.md
+    tools/study_fusion.py --eval-seed 100006 --out out/study_fusion     # docs/results/nav_event_input_study.md
     tools/study_fusion.py --eval-seed 100007 --train-seeds 2,3 \
         --out out/study_fusion_confirm     # its replication: new training seeds, new episodes
 """
