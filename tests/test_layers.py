@@ -10,6 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # lower index = lower layer; a package may import only from strictly lower layers
 LAYERS = (
+    # the one-line hint for a missing optional extra
+    {"sebvs.extras"},
     {"sebvs.runtime", "sebvs.dvs", "sebvs.sim", "sebvs.metrics"},
     # fan-out of episodes: runs topology shards through the runtime for data and eval
     {"sebvs.scale"},
@@ -19,6 +21,8 @@ LAYERS = (
     {"sebvs.policy"},
     {"sebvs.eval", "sebvs.numerics"},
     {"sebvs.cli", "sebvs.demo", "actors"},
+    # the field's tools on top of everything: Gymnasium environments, the rerun viewer
+    {"sebvs.envs", "sebvs.view"},
 )
 RANK = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..extras import require
 from .emulator import EVENT_DTYPE
-from .eventfile import EventFile
+from .eventsource import EventFile
 
 CAMERA_NAME = "sebvs"
 

@@ -22,10 +22,10 @@ import h5py
 import numpy as np
 
 from .emulator import EVENT_DTYPE
+from .eventsource import CHUNK, EventFile
 
 FORMATS = ("sebvs-h5", "common-h5", "episode", "aedat4")
 AEDAT4_MAGIC = b"#!AER-DAT4"
-CHUNK = 1 << 20          # events per chunk when a file is streamed
 
 
 def detect_format(path: str | Path) -> str:
@@ -57,51 +57,6 @@ def detect_format(path: str | Path) -> str:
                 return "sebvs-h5"
     raise ValueError(f"{p}: not an event file (expected HDF5 with events/x, y, t, p, an "
                      f"episode with raw events, or AEDAT4)")
-
-
-class EventFile:
-    """An event file opened for reading: ``width``, ``height``, ``count`` (None where
-    the format does not say without reading), ``time_range_ns`` (first, last),
-    ``chunks()`` to stream, ``read()`` for a time window, ``attrs`` (the file's own)."""
-
-    format = ""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.width = self.height = 0
-        self.count: int | None = None
-        self.attrs: dict = {}
-
-    @property
-    def time_range_ns(self) -> tuple[int, int]:
-        raise NotImplementedError
-
-    def chunks(self, size: int = CHUNK) -> Iterator[np.ndarray]:
-        raise NotImplementedError
-
-    def read(self, t0_ms: float | None = None, t1_ms: float | None = None) -> np.ndarray:
-        """Events of [t0_ms, t1_ms), milliseconds from the file's first event."""
-        parts = list(self.chunks())
-        ev = np.concatenate(parts) if parts else np.zeros(0, EVENT_DTYPE)
-        return _window(ev, t0_ms, t1_ms)
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> "EventFile":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-def _window(ev: np.ndarray, t0_ms: float | None, t1_ms: float | None) -> np.ndarray:
-    if not ev.size or (t0_ms is None and t1_ms is None):
-        return ev
-    first = int(ev["t"][0])
-    lo = 0 if t0_ms is None else np.searchsorted(ev["t"], first + round(t0_ms * 1e6))
-    hi = ev.size if t1_ms is None else np.searchsorted(ev["t"], first + round(t1_ms * 1e6))
-    return ev[lo:hi]
 
 
 def _attrs(f: h5py.File) -> dict:
