@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from sebvs.dvs.accumulator import EventAccumulator, EventGeometry
+from sebvs.dvs.stream import FrameStream
 from sebvs.runtime import Actor, Message, Range
 
 OutSide = Annotated[int, Range(ge=0, le=4096)]   # px; 0: the emulator's frame size
@@ -31,42 +31,27 @@ class Accumulator(Actor):
         out_height: OutSide = 0
 
     async def setup(self) -> None:
-        self.acc = None
-        self.geometry_key = None       # (event_sensor, frame) meta the accumulator was built for
-        self.episode = None
+        p = self.params
+        # geometry, episodes and frames: sebvs.dvs.stream, which sebvs.envs runs too
+        self.stream = FrameStream(p.representation, p.window_s, p.bins, p.clip,
+                                  p.out_width, p.out_height)
         self.frames_out = 0
 
-    def _accumulator(self, meta: dict) -> EventAccumulator:
-        # every packet carries the geometry; it changes only with the scene's image size
-        key = (meta["event_sensor"], meta.get("frame"))
-        if self.acc is not None and key == self.geometry_key:
-            return self.acc
-        p = self.params
-        out = (p.out_width or meta["frame"][0], p.out_height or meta["frame"][1])
-        geometry = EventGeometry(tuple(meta["event_sensor"]), out)
-        if self.acc is None or self.acc.geometry != geometry:
-            self.acc = EventAccumulator(geometry, p.representation, p.window_s, p.bins, p.clip)
-        self.geometry_key = key
-        return self.acc
+    @property
+    def acc(self):
+        return self.stream.acc
 
     async def on_events(self, msg: Message) -> None:
-        acc = self._accumulator(msg.meta)
-        if msg.meta.get("episode") != self.episode:
-            acc.clear()
-            self.episode = msg.meta.get("episode")
-        acc.add(msg.arrays["events"].copy())   # the packet outlives this handler
+        # a copy: the packet outlives this handler
+        self.stream.add(msg.arrays["events"].copy(), msg.meta.get("episode"), msg.meta)
         if not msg.meta.get("control"):
             return
-        frame = acc.frame(round((msg.t_sim or 0.0) * 1e9))
+        frame = self.stream.frame(msg.t_sim)
         out = self.reserve("frames", {"frame": (frame.shape, frame.dtype)})
         out["frame"][...] = frame
         self.frames_out += 1
         meta = {k: v for k, v in msg.meta.items() if k not in ("event_sensor", "frame")}
-        await self.emit("frames", out, parent=msg,
-                        meta={**meta, **acc.geometry.to_meta(),
-                              "representation": acc.representation,
-                              "bins": 1 if acc.representation == "counts" else acc.bins,
-                              "window_s": self.params.window_s})
+        await self.emit("frames", out, parent=msg, meta={**meta, **self.stream.frame_meta()})
 
     def stats(self) -> dict:
         return {"frames": self.frames_out,

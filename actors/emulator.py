@@ -16,10 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-import numpy as np
-
-from sebvs.dvs.emulator import EventEmulator
 from sebvs.dvs.params import preset
+from sebvs.dvs.stream import SensorStream
 from sebvs.runtime import Actor, Message
 
 
@@ -33,33 +31,20 @@ class Emulator(Actor):
         overrides: dict = field(default_factory=dict)   # e.g. { downsample = 1.0 }
 
     async def setup(self) -> None:
-        self.emulator = EventEmulator(preset(self.params.preset,
-                                             **{"seed": self.seed, **self.params.overrides}))
-        self.episode = None
+        # the episode restarts and the fixed pattern per episode: sebvs.dvs.stream
+        self.stream = SensorStream(preset(self.params.preset,
+                                          **{"seed": self.seed, **self.params.overrides}))
+        self.emulator = self.stream.emulator
         self.events_out = 0
         self.bad_frames = 0
         self.gap_restarts = 0
 
     async def on_luma(self, msg: Message) -> None:
-        episode = msg.meta.get("episode")
-        if episode != self.episode:
-            self.emulator.reset()
-            if isinstance(episode, int) and episode >= 0:
-                # the fixed pattern an episode draws depends on that episode alone, not on
-                # how many this process played before: a fan-out worker that plays
-                # episodes [a, b) of a run (sebvs/scale) draws what one process playing
-                # them all draws
-                self.emulator.rng = np.random.default_rng([self.emulator.params.seed, episode])
-            self.episode = episode
         restarts, prev_t = self.emulator.gap_restarts, self.emulator.t_ns
         try:
-            # inside the try: round() of an inf t_sim raises OverflowError, of NaN ValueError
-            t_ns = round((msg.t_sim or 0.0) * 1e9)
             frame = msg.arrays["luma"]
-            if msg.meta.get("units") == "cd/m2":
-                events = self.emulator.step_luminance(frame, t_ns)
-            else:
-                events = self.emulator.step(frame, t_ns)
+            events = self.stream.frame(frame, msg.t_sim, msg.meta.get("episode"),
+                                       msg.meta.get("units"))
         except (ValueError, KeyError, OverflowError) as exc:
             self.bad_frames += 1
             # a stream stuck on bad frames (e.g. time went back) must not flood the log
@@ -72,12 +57,9 @@ class Emulator(Actor):
             self.log.warning("tick %s: %.3g s from the previous frame, beyond max_gap_s "
                              "either way; the sensor restarts from this frame", msg.tick,
                              (self.emulator.t_ns - prev_t) * 1e-9)
-        h, w = self.emulator.shape
-        luma = msg.arrays["luma"]
         self.events_out += events.size
         await self.emit("events", {"events": events}, parent=msg,
-                        meta={**msg.meta, "event_sensor": [w, h],
-                              "frame": [luma.shape[1], luma.shape[0]]})
+                        meta={**msg.meta, **self.stream.geometry_meta(frame)})
 
     def stats(self) -> dict:
         return {"events": self.events_out, "frames": self.emulator.frames,

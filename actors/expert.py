@@ -18,7 +18,6 @@ The library code is sebvs.experts (detector, pid, nav, arm); this module only wi
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
@@ -78,50 +77,26 @@ class Expert(Actor):
 
     async def setup(self) -> None:
         import cv2
+        from sebvs.experts.agent import ExpertAgent
         p = self.params
         cv2.setNumThreads(max(1, p.threads))
-        self.detector = self._detector()
-        self.episode = None
-        self.last_t: float | None = None
+        self.agent = ExpertAgent(p)       # the per-tick logic (sebvs.experts.agent)
         self.counts = {"actions": 0, "detected": 0, "missed": 0, "skipped_ticks": 0}
         self.last_tick: int | None = None
-        if p.task == "nav":
-            self._setup_nav()
-        else:
+        if p.task == "arm":
             missing = {"rgb", "depth", "state"} - set(self.connected)
             if missing:
                 raise ValueError(f"expert: task arm needs inputs {sorted(missing)} wired")
             self.pending: dict[int, _Pending] = {}
             self.states: dict[int, tuple] = {}   # tick -> (ArmCameraModel, state)
-            self.arm = None                 # built from the sim's scene + config
-            self.arm_key = None
-            from sebvs.experts.arm import TargetLead
-            self.lead = TargetLead(p.lead_s)
         self.log.info("expert: task %s, colour %s", p.task, p.color)
 
-    def _detector(self):
-        from sebvs.experts.detector import ColorDetector
-        p = self.params
-        if len(p.color) != 3:
-            raise ValueError(f"expert: color must be [r, g, b], got {p.color!r}")
-        return ColorDetector(rgb=tuple(float(c) for c in p.color), hue_tol=p.hue_tol,
-                             s_min=p.s_min, c_min=p.c_min, min_area=p.min_area)
-
-    def _setup_nav(self) -> None:
-        from sebvs.experts.nav import NavExpert
-        self.nav = NavExpert(self._nav_config())
-
-    def _nav_config(self):
-        from sebvs.experts.nav import NavExpertConfig
-        from sebvs.experts.pid import PIDGains
-        p = self.params
-        return NavExpertConfig(
-            yaw=PIDGains(kp=p.yaw_kp, ki=p.yaw_ki, kd=p.yaw_kd, i_min=-0.4, i_max=0.4,
-                         tau_d=0.05, anti_windup=p.anti_windup),
-            speed=PIDGains(kp=p.speed_kp, ki=p.speed_ki, kd=p.speed_kd, i_min=-0.3, i_max=0.3,
-                           anti_windup=p.anti_windup),
-            desired_width=p.desired_width, turn_slowdown=p.turn_slowdown, hold_s=p.hold_s,
-            search_w=p.search_w)
+    # the agent's parts, by the names the actor always had
+    detector = property(lambda self: self.agent.detector)
+    nav = property(lambda self: self.agent.nav)
+    lead = property(lambda self: self.agent.lead)
+    arm = property(lambda self: self.agent.arm)
+    last_t = property(lambda self: self.agent.last_t)
 
     async def control(self, key: str, value) -> dict:
         """`sebvs ctl RUN expert set yaw_kp=2.0` etc.: gains, detector and search settings
@@ -131,13 +106,7 @@ class Expert(Actor):
         old = getattr(self.params, key, None)
         result = await super().control(key, value)
         try:
-            self.detector = self._detector()
-            if self.params.task == "nav":
-                cfg = self._nav_config()
-                self.nav.cfg = cfg
-                self.nav.yaw_pid.g, self.nav.speed_pid.g = cfg.yaw, cfg.speed
-            else:
-                self.lead.lead_s = self.params.lead_s     # the velocity estimate is kept
+            self.agent.reconfigure()
         except ValueError:
             setattr(self.params, key, old)      # refused: the running settings stay
             raise
@@ -146,26 +115,7 @@ class Expert(Actor):
     # ------------------------------------------------------------------ common
     def _new_tick(self, msg: Message) -> float:
         """Episode bookkeeping; returns dt (s) since the previous control tick."""
-        ep = msg.meta.get("episode")
-        # the episode's own clock when the frame carries it: t_sim counts from the start of
-        # the run, and a difference of two large times rounds with that offset, so an
-        # episode played by another worker (another offset) got dt, and so actions, a few
-        # ulps apart (3 of 70 episodes of a 2-worker recording, `sebvs data compare`)
-        t = msg.meta.get("t_ep")
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
-            t = msg.t_sim
-        if ep != self.episode or self.last_t is None or t is None:
-            self.episode = ep
-            if self.params.task == "nav":
-                self.nav.reset()
-            else:
-                self.lead.reset()
-            dt = 1.0 / self.params.control_hz
-        else:
-            dt = t - self.last_t
-            if not dt > 0:
-                dt = 1.0 / self.params.control_hz
-        self.last_t = t
+        dt = self.agent.new_tick(msg.meta.get("episode"), msg.meta.get("t_ep"), msg.t_sim)
         if self.last_tick is not None and msg.tick is not None and msg.tick > self.last_tick + 1:
             self.counts["skipped_ticks"] += msg.tick - self.last_tick - 1
         self.last_tick = msg.tick
@@ -184,10 +134,8 @@ class Expert(Actor):
             return      # a sample between control ticks (camera rgb_hz > control rate)
         if self.params.task == "nav":
             dt = self._new_tick(msg)
-            rgb = msg.arrays["rgb"]
-            det = self.detector.detect(rgb)
-            cmd = self.nav.act(det, (rgb.shape[1], rgb.shape[0]), dt)
-            await self._answer(msg, "action", cmd, det, self.nav.mode)
+            cmd, det, mode = self.agent.nav_act(msg.arrays["rgb"], dt)
+            await self._answer(msg, "action", cmd, det, mode)
         else:
             self._pending(msg).rgb = np.array(msg.arrays["rgb"])
             if self._pending(msg).msg is None:
@@ -208,10 +156,8 @@ class Expert(Actor):
         if self.params.task != "arm":
             return
         meta = msg.meta
-        if "config" in meta and (meta["scene"], meta["config"]) != self.arm_key:
-            from sebvs.experts.arm import ArmCameraModel
-            self.arm = ArmCameraModel(meta["scene"], meta["config"], camera=self.params.camera)
-            self.arm_key = (meta["scene"], meta["config"])
+        if "config" in meta:
+            self.agent.arm_camera(meta["scene"], meta["config"])
         if not meta.get("control"):
             return
         # with the model of its own episode: the next episode's first state (another
@@ -221,7 +167,6 @@ class Expert(Actor):
 
     async def _arm_ready(self) -> None:
         """Answer every tick whose rgb, depth and state have all arrived, oldest first."""
-        from sebvs.experts.arm import ArmExpertConfig, pregrasp_from_images
         for tick in sorted(self.pending):
             pend = self.pending[tick]
             if pend.rgb is None or pend.depth is None or tick not in self.states or \
@@ -229,12 +174,7 @@ class Expert(Actor):
                 continue
             self._new_tick(pend.msg)
             arm, state = self.states.pop(tick)
-            cam = arm.camera_pose(state)
-            pose, det, mode = pregrasp_from_images(
-                pend.rgb, pend.depth, cam, self.detector,
-                ArmExpertConfig(clearance=self.params.clearance, **arm.scene_constants()))
-            if self.lead.lead_s > 0:
-                pose[:2] += self.lead.update(self.last_t, pose[:2] if mode == "grasp" else None)
+            pose, det, mode = self.agent.arm_act(pend.rgb, pend.depth, arm, state)
             del self.pending[tick]
             await self._answer(pend.msg, "pose", pose, det, mode)
         # frames of ticks that can no longer complete (a lost state) must not pile up

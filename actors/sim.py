@@ -41,7 +41,6 @@ episode with its reason before the bad state is published: NaN never leaves this
 from __future__ import annotations
 
 import asyncio
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Annotated, Literal, Optional
@@ -50,19 +49,8 @@ import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
 from sebvs.runtime.deadlines import DeadlineMonitor
-from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
-from sebvs.sim.randomise import SceneRandomiser
-from sebvs.sim.stability import StabilityMonitor
-
-import mujoco  # noqa: E402  (after sebvs.sim on purpose)
-
-
-NOISE_STREAM = 0x6e6f697365   # "noise": the execution noise's seed stream, beside the scene's
-
-
-def episode_seed(seed: int, episode: int) -> int:
-    """The seed of episode `episode` of a run seeded `seed` (stable, reportable)."""
-    return int(np.random.SeedSequence([seed, episode]).generate_state(1)[0])
+# the physics and the episode loop's steps: sebvs.envs runs the same, in process
+from sebvs.sim.stepper import NOISE_STREAM, SceneStepper, episode_seed  # noqa: F401
 
 
 class Sim(Actor):
@@ -108,40 +96,18 @@ class Sim(Actor):
     # ------------------------------------------------------------------ setup
     async def setup(self) -> None:
         p = self.params
-        physics_hz = 1.0 / p.timestep if p.timestep else p.physics_hz
-        for key, v in (("physics_hz", physics_hz), ("control_hz", p.control_hz),
-                       ("render_hz", p.render_hz), ("episode_s", p.episode_s),
-                       ("realtime_factor", p.realtime_factor)):
-            if not v > 0:
-                raise ValueError(f"sim: {key} must be positive, got {v!r}")
-        self.dt = 1.0 / physics_hz
-        self.steps_per_control = max(1, round(physics_hz / p.control_hz))
-        self.steps_per_render = max(1, round(physics_hz / p.render_hz))
-        for key, hz, n in (("control_hz", p.control_hz, self.steps_per_control),
-                           ("render_hz", p.render_hz, self.steps_per_render)):
-            if abs(physics_hz / hz - n) > 1e-6 * n:
-                raise ValueError(f"sim: {key} {hz:g} must divide physics_hz {physics_hz:g} "
-                                 f"(a whole number of physics steps per period)")
-        if self.steps_per_control % self.steps_per_render:
-            raise ValueError(
-                f"sim: control period ({self.steps_per_control} steps) must be a multiple of "
-                f"the render period ({self.steps_per_render} steps at physics_hz "
-                f"{physics_hz:g}): choose render_hz = n * control_hz")
-        for key in ("integrator", "timestep"):
-            if key in p.config:
-                raise ValueError(f"sim: set {key!r} as a sim parameter, not inside config")
-        base = {**p.config, "integrator": p.integrator, "timestep": self.dt}
-        self.randomiser = SceneRandomiser(p.scene, base, p.randomise) if p.randomise else None
-        if self.randomiser:
-            self.log.info("sim: each episode draws %s", self.randomiser.describe())
-        self.config: dict = {}
-        self._build(base)
-        self._check_noise(p.command_noise)
-        self.noise_rng = np.random.default_rng(0)   # reseeded per episode
+        if not p.realtime_factor > 0:
+            raise ValueError(f"sim: realtime_factor must be positive, got {p.realtime_factor!r}")
+        self.core = SceneStepper(p.scene, p.config, randomise=p.randomise,
+                                 integrator=p.integrator, physics_hz=p.physics_hz,
+                                 timestep=p.timestep, control_hz=p.control_hz,
+                                 render_hz=p.render_hz, episode_s=p.episode_s,
+                                 check_every=p.check_every, command_noise=p.command_noise)
+        if self.core.randomiser:
+            self.log.info("sim: each episode draws %s", self.core.randomiser.describe())
         self.lockstep_wait = self.clock == "lockstep" and "action" in self.connected
         self.deadlines = DeadlineMonitor(round(1e9 / (p.control_hz * p.realtime_factor))) \
             if self.clock == "realtime" and "action" in self.connected else None
-        self.command = self.scene.idle_command()            # last good command
         self.pending: tuple[int, np.ndarray] | None = None  # lockstep: newest valid action
         self.action_tick = -1
         self.action_event = asyncio.Event()
@@ -154,15 +120,24 @@ class Sim(Actor):
                       self.dt, self.steps_per_control, self.steps_per_render,
                       self.lockstep_wait)
 
-    def _build(self, config: dict) -> None:
-        """(Re)compile the scene for ``config``; a no-op when it is the current one."""
-        if config == self.config:
-            return
-        self.config = config
-        self.scene = make_scene(self.params.scene, **config)
-        self.model = self.scene.compile()
-        self.data = mujoco.MjData(self.model)
-        self.monitor = StabilityMonitor(self.model, self.scene.limits())
+    # the core's state, by the names the actor always had
+    scene = property(lambda self: self.core.scene)
+    model = property(lambda self: self.core.model)
+    data = property(lambda self: self.core.data)
+    config = property(lambda self: self.core.config)
+    randomiser = property(lambda self: self.core.randomiser)
+    dt = property(lambda self: self.core.dt)
+    steps_per_control = property(lambda self: self.core.steps_per_control)
+    steps_per_render = property(lambda self: self.core.steps_per_render)
+    command = property(lambda self: self.core.command)
+
+    @property
+    def noise_rng(self) -> np.random.Generator:
+        return self.core.noise_rng
+
+    @noise_rng.setter
+    def noise_rng(self, rng: np.random.Generator) -> None:
+        self.core.noise_rng = rng
 
     # ------------------------------------------------------------------ actions
     async def on_action(self, msg: Message) -> None:
@@ -173,9 +148,7 @@ class Sim(Actor):
         if self.lockstep_wait and tick < self.tick:
             self.counts["stale_actions"] += 1       # answer to a tick already stepped past
             return
-        ok = cmd is not None and cmd.shape == (self.scene.command_dim,) and \
-            bool(np.isfinite(cmd).all())
-        if not ok:
+        if not self.core.check_command(cmd):
             self._reject(cmd, tick, "missing, wrong shape or not finite")
         elif self.lockstep_wait:
             self.pending = (tick, np.array(cmd, dtype=np.float64))
@@ -192,11 +165,6 @@ class Sim(Actor):
                        self.command.tolist())
         self.telemetry("command_rejected", tick=tick, reason=why, command=repr(shown))
 
-    def _check_noise(self, std: list) -> None:
-        if std and len(std) != self.scene.command_dim:
-            raise ValueError(f"sim: command_noise has {len(std)} values, the {self.params.scene} "
-                             f"command has {self.scene.command_dim} (one std per dimension)")
-
     async def control(self, key: str, value) -> dict:
         """`sebvs ctl RUN sim set command_noise=[0.1,0.05]` applies from the next command;
         a list of the wrong length is refused and the running one stays."""
@@ -204,29 +172,18 @@ class Sim(Actor):
         result = await super().control(key, value)     # type and Range checked there
         if key == "command_noise":
             try:
-                self._check_noise(self.params.command_noise)
+                self.core.check_noise(self.params.command_noise)
             except ValueError:
                 self.params.command_noise = old
                 raise
+            self.core.command_noise = list(self.params.command_noise)
         return result
 
-    def _executed(self, cmd: np.ndarray) -> np.ndarray:
-        """The command as executed: plus the execution noise, when there is any."""
-        std = self.params.command_noise
-        if not std:
-            return cmd
-        self.counts["noised"] += 1
-        return cmd + self.noise_rng.normal(0.0, 1.0, cmd.shape) * np.asarray(std)
-
     def _apply(self, cmd: np.ndarray, tick: int) -> None:
-        saved = self.data.ctrl.copy()
-        try:
-            self.scene.apply_command(self.model, self.data, self._executed(cmd))
-        except ValueError as exc:
-            self.data.ctrl[:] = saved               # a scene must not half-apply a command
-            self._reject(cmd, tick, str(exc))
-            return
-        self.command = cmd
+        why = self.core.apply(cmd)
+        self.counts["noised"] = self.core.noised
+        if why is not None:
+            self._reject(cmd, tick, why)
 
     async def _await_action(self, tick: int) -> None:
         """Lockstep: block until the action for `tick` (or a later one) has arrived."""
@@ -270,40 +227,26 @@ class Sim(Actor):
         return 0.0
 
     async def _episode(self, k: int) -> None:
-        seed = episode_seed(self.seed, k)
-        if self.randomiser:
-            # the camera recompiles from the first state's meta, so both stay on one model
-            self._build(self.randomiser.draw(seed))
-        p, model, data, scene = self.params, self.model, self.data, self.scene
-        scene.reset(model, data, np.random.default_rng(seed))
-        self.noise_rng = np.random.default_rng([seed, NOISE_STREAM])
-        self.monitor.reset(data)
-        self.command = scene.idle_command()
+        p, core = self.params, self.core
+        info = core.start_episode(self.seed, k)
+        seed = info["seed"]
         self.pending = None
-        scene.apply_command(model, data, self.command)
-        info = {"episode": k, "seed": seed, "scene": p.scene, "config": self.config}
         await self.emit("episode", meta={"event": "start", "reason": "", **info},
                         t_sim=self.t_offset, tick=self.tick + 1)
-        n_steps = max(1, round(p.episode_s / self.dt))
         pace = self._pace_factor()
         wall0 = time.monotonic_ns()
-        step, reason = 0, "time_limit"
+        reason = "time_limit"
         while True:
-            if step % self.steps_per_render == 0:
-                control = step % self.steps_per_control == 0
+            if core.render_due:
+                control = core.control_due
                 if control:
                     self.tick += 1
-                meta = {"episode": k, "control": control, "t_ep": data.time}
-                if control:
-                    meta["truth"] = scene.truth(model, data)
-                if step == 0:
-                    meta["scene"], meta["config"] = p.scene, self.config
-                    meta["control_hz"] = p.control_hz
-                await self.emit("state", scene.state(data), meta=meta,
+                data = core.data
+                await self.emit("state", core.scene.state(data), meta=core.sample_meta(k),
                                 t_sim=self.t_offset + data.time, tick=self.tick)
-                if control and self.deadlines is not None and step < n_steps:
+                if control and self.deadlines is not None and not core.at_end:
                     self._tick_published()
-                if control and step < n_steps:
+                if control and not core.at_end:
                     await self._await_action(self.tick)
                 if pace > 0:
                     if not await self.sleep_until(wall0 + int(data.time / pace * 1e9)):
@@ -314,22 +257,14 @@ class Sim(Actor):
             if self.stopping.is_set():
                 reason = "stopped"
                 break
-            if step >= n_steps:
-                break
-            why = scene.done(model, data)
+            why = core.advance()
             if why:
                 reason = why
-                break
-            scene.scripted(model, data)
-            mujoco.mj_step(model, data)
-            step += 1
-            if step % p.check_every == 0:
-                why = self.monitor.check(model, data)
-                if why:
-                    reason = why
+                if core.diverged:
                     self.counts["diverged"] += 1
                     self.log.warning("episode %d: %s", k, why)
-                    break
+                break
+        step = core.step
         self.counts["steps"] += step
         self.counts["episodes"] += 1
         if self.deadlines is not None:
@@ -341,11 +276,9 @@ class Sim(Actor):
                           f"; action latency p50 {summary['latency_p50_ms']:.1f} ms, p99 "
                           f"{summary['latency_p99_ms']:.1f} ms"
                           if "latency_p50_ms" in summary else "")
-        t_ep = float(data.time) if math.isfinite(data.time) else step * self.dt
-        outcome = {}
-        if reason != "stopped" and not reason.startswith("diverged"):
-            # after t_ep is taken: what finish() simulates (a grasp) is not episode time
-            outcome = scene.finish(model, data, self.monitor)
+        t_ep = core.t_ep()
+        # after t_ep is taken: what finish() simulates (a grasp) is not episode time
+        outcome = core.finish(reason)
         await self.emit("episode", meta={"event": "end", "reason": reason, "steps": step,
                                          "t_ep": t_ep, "outcome": outcome, **info},
                         t_sim=self.t_offset + t_ep, tick=self.tick)

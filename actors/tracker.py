@@ -26,9 +26,8 @@ from typing import Annotated
 
 import numpy as np
 
-from sebvs.metrics import (arm_metrics, centre_error_px, end_decision_correct,
-                                grasp_success, nav_episode_metrics)
-from sebvs.experts.arm import leading_poses
+from sebvs.metrics import (arm_episode_summary, centre_error_px, episode_duration,
+                           nav_truth_metrics)
 from sebvs.runtime import Actor, Message, Range
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
@@ -117,7 +116,7 @@ class EpisodeTracker(Actor):
 
     def _duration(self, rows: list) -> float:
         # the sim publishes a control sample at both ends of an episode
-        return rows[-1][2] - rows[0][2] if len(rows) > 1 else 1 / self.params.control_hz
+        return episode_duration([t_ep for _, _, t_ep in rows], self.params.control_hz)
 
     def _finalize(self, ep: int) -> None:
         info = self.episodes.get(ep)
@@ -166,13 +165,7 @@ class NavTracker(EpisodeTracker):
     """Table 4: centroid error, bbox width, success within the scaled 200 px radius."""
 
     def _metrics(self, rows: list) -> dict:
-        truths = [t for _, t, _ in rows]
-        w, h = truths[0]["image"]
-        centroids = [t["centroid"] for t in truths]
-        widths = [t["bbox"][2] - t["bbox"][0] for t in truths]
-        visible = [t["visible"] for t in truths]
-        return nav_episode_metrics(centroids, widths, visible, (w, h),
-                                   self._duration(rows)).as_dict()
+        return nav_truth_metrics([t for _, t, _ in rows], self._duration(rows))
 
     def summarise(self, rows: list, segments: dict, info: dict) -> dict:
         return {"metrics": self._metrics(rows),
@@ -198,40 +191,17 @@ class ArmTracker(EpisodeTracker):
         return None if pose is None else np.asarray(pose, np.float64).reshape(6)
 
     def summarise(self, rows: list, segments: dict, info: dict) -> dict:
-        reference = leading_poses([t["expert_pose"] for _, t, _ in rows],
-                                  [t["mode"] for _, t, _ in rows],
-                                  [t_ep for _, _, t_ep in rows], self.params.lead_s)
-        pairs = [(self.actions[k], ref) for (k, _, _), ref in zip(rows, reference)
-                 if k in self.actions]
-        scored = [t for k, t, _ in rows if k in self.actions]   # truth at the ticks in pairs
-        pred = np.array([p for p, _ in pairs]).reshape(-1, 6)
-        expert = np.array([e for _, e in pairs], dtype=np.float64).reshape(-1, 6)
+        actions = [self.actions.get(k) for k, _, _ in rows]
         outcome = (info.get("outcome") or {}).get("outcome")
         objects = int((info.get("config") or {}).get("objects", 1))
-        metrics = {"scenario": "single" if objects == 1 else "multi",
-                   **arm_metrics(pred, expert),
-                   "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
-                   "modes": [t["mode"] for t in scored],
-                   # where every cube was at each scored tick, so a miss can be told
-                   # apart: aimed at another cube, between cubes, or near the right one
-                   "target": [t.get("target", -1) for t in scored],
-                   "cubes_mm": [_cubes_mm(t) for t in scored],
-                   "reference_lead_s": self.params.lead_s,
-                   "outcome": outcome, "grasp_success": grasp_success(outcome),
-                   "end_decision_correct": end_decision_correct(outcome),
-                   "duration_s": self._duration(rows)}
-        if len(pairs) < len(rows):
+        summary = arm_episode_summary([t for _, t, _ in rows], [t_ep for _, _, t_ep in rows],
+                                      actions, outcome, objects, self.params.lead_s,
+                                      self._duration(rows))
+        missing = sum(a is None for a in actions)
+        if missing:
             self.log.warning("episode %s: %d of %d ticks had no pose", info.get("seed"),
-                             len(rows) - len(pairs), len(rows))
-        return {"metrics": metrics,
-                "trace_error_mm": np.round(np.linalg.norm(pred[:, :3] - expert[:, :3], axis=1)
-                                           * 1e3, 2).tolist()}
-
-
-def _cubes_mm(truth: dict) -> list:
-    """[[x mm, y mm, visible 0/1], ...] of the truth's cubes at one tick, index = cube."""
-    return [[round(c["pos"][0] * 1e3, 1), round(c["pos"][1] * 1e3, 1), int(c["visible"])]
-            for c in truth.get("cubes", ())]
+                             missing, len(rows))
+        return summary
 
 
 def _rounded(x: float | None) -> float | None:

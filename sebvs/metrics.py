@@ -102,6 +102,61 @@ def centre_error_px(truth: dict) -> float | None:
     return float(math.hypot(u - w / 2, v - h / 2))
 
 
+def episode_duration(times, control_hz: float) -> float:
+    """Seconds an episode's control ticks span (the sim publishes a control sample at both
+    ends of an episode): last minus first tick time, one control period for one tick."""
+    return times[-1] - times[0] if len(times) > 1 else 1 / control_hz
+
+
+def nav_truth_metrics(truths: list, duration_s: float) -> dict:
+    """Table 4 of one episode (or a segment of one) from its control ticks' nav truth
+    dicts (sebvs.sim.nav.NavScene.truth): what the nav tracker records, and the nav
+    environment's episode metrics (sebvs.envs)."""
+    w, h = truths[0]["image"]
+    return nav_episode_metrics([t["centroid"] for t in truths],
+                               [t["bbox"][2] - t["bbox"][0] for t in truths],
+                               [t["visible"] for t in truths], (w, h), duration_s).as_dict()
+
+
+def arm_episode_summary(truths: list, times: list, actions: list, outcome: str | None,
+                        objects: int, lead_s: float, duration_s: float) -> dict:
+    """Table 5 of one arm episode: {"metrics", "trace_error_mm"}, what the arm tracker
+    records and the arm environment's episode metrics (sebvs.envs).
+
+    truths [T] the control ticks' arm truth dicts, times [T] their t_ep (s), actions [T]
+    the pose commanded at each tick (None where none came), outcome the scene's finish()
+    outcome. Each pose is scored against the task's pose from truth, led by ``lead_s``
+    as the expert that made the labels leads a moving cube."""
+    from sebvs.experts.arm import leading_poses
+    reference = leading_poses([t["expert_pose"] for t in truths], [t["mode"] for t in truths],
+                              list(times), lead_s)
+    kept = [k for k, a in enumerate(actions) if a is not None]
+    pred = np.array([np.asarray(actions[k], np.float64).reshape(6) for k in kept]).reshape(-1, 6)
+    expert = np.array([reference[k] for k in kept], dtype=np.float64).reshape(-1, 6)
+    scored = [truths[k] for k in kept]
+    metrics = {"scenario": "single" if objects == 1 else "multi",
+               **arm_metrics(pred, expert),
+               "pred": np.round(pred, 5).tolist(), "expert": np.round(expert, 5).tolist(),
+               "modes": [t["mode"] for t in scored],
+               # where every cube was at each scored tick, so a miss can be told
+               # apart: aimed at another cube, between cubes, or near the right one
+               "target": [t.get("target", -1) for t in scored],
+               "cubes_mm": [_cubes_mm(t) for t in scored],
+               "reference_lead_s": lead_s,
+               "outcome": outcome, "grasp_success": grasp_success(outcome),
+               "end_decision_correct": end_decision_correct(outcome),
+               "duration_s": duration_s}
+    return {"metrics": metrics,
+            "trace_error_mm": np.round(np.linalg.norm(pred[:, :3] - expert[:, :3], axis=1)
+                                       * 1e3, 2).tolist()}
+
+
+def _cubes_mm(truth: dict) -> list:
+    """[[x mm, y mm, visible 0/1], ...] of the truth's cubes at one tick, index = cube."""
+    return [[round(c["pos"][0] * 1e3, 1), round(c["pos"][1] * 1e3, 1), int(c["visible"])]
+            for c in truth.get("cubes", ())]
+
+
 # The arm scene's end-of-episode outcomes (sebvs.sim.arm.ArmScene.finish) that are not
 # grasp trials: nothing graspable was there, whatever was commanded.
 NOT_A_GRASP_TRIAL = ("home_correct", "grasp_unwanted")

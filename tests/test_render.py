@@ -81,13 +81,14 @@ def test_the_camera_keeps_its_renderers_when_the_scene_changes():
     cam = Camera("camera", Camera.Params(luma_scale=0.5), seed=0, clock="lockstep",
                  consumed=frozenset({"rgb", "luma"}), node=FakeNode())
     asyncio.run(cam.setup())
-    cam._build("nav", {"variant": "indoor"})
-    rgb_r, luma_r = cam.renderer, cam.luma_renderer
-    cam._build("nav", {"variant": "outdoor", "lighting": "low"})
-    assert cam.renderer is rgb_r and cam.luma_renderer is luma_r
-    assert rgb_r.model is cam.model and luma_r.model is cam.model
-    cam._build("nav", {"variant": "outdoor", "width": 96, "height": 96})   # another size
-    assert cam.renderer is not rgb_r and (cam.renderer.height, cam.luma_renderer.width) == (96, 48)
+    core = cam.core                  # the rendering (sebvs.sensors.camera)
+    core.build("nav", {"variant": "indoor"})
+    rgb_r, luma_r = core.renderer, core.luma_renderer
+    core.build("nav", {"variant": "outdoor", "lighting": "low"})
+    assert core.renderer is rgb_r and core.luma_renderer is luma_r
+    assert rgb_r.model is core.model and luma_r.model is core.model
+    core.build("nav", {"variant": "outdoor", "width": 96, "height": 96})   # another size
+    assert core.renderer is not rgb_r and (core.renderer.height, core.luma_renderer.width) == (96, 48)
     asyncio.run(cam.teardown())
 
 

@@ -72,13 +72,13 @@ def test_the_sim_plays_each_episode_in_its_drawn_scene(tmp_path, monkeypatch):
     sim, node = make_sim(config=NAV_BASE, randomise=spec, episodes=6, episode_s=0.05,
                          linger_s=0.0)
     walls = []
-    build = sim._build
+    build = sim.core.build          # the sim actor's physics (sebvs.sim.stepper)
 
     def spy(config):
         build(config)
         walls.append(mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_GEOM, "wall_n") >= 0)
 
-    sim._build = spy
+    sim.core.build = spy
     asyncio.run(sim.run())
     starts = [m for o, _, m, *_ in node.emitted if o == "episode" and m["event"] == "start"]
     firsts = [m for o, _, m, *_ in node.emitted if o == "state" and "config" in m]

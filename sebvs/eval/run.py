@@ -145,6 +145,13 @@ SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render
                    "episode_s")
 
 
+def event_sensor_overrides(task: str, condition: str) -> list[str]:
+    """The event sensor a condition asks for: under the physical conditions the emulator's
+    "physical" preset, the event sensor's own physics on linear light (slow and noisy at
+    dusk). The evaluation's event rows and the Gymnasium environments (sebvs.envs)."""
+    return ['emulator.preset="physical"'] if condition in TASKS[task].physical else []
+
+
 @dataclass(frozen=True)
 class Run:
     """One topology run: N seeded episodes of one condition, scenario and modality."""
@@ -360,9 +367,7 @@ class EvalPlan:
             sets.append('policy.inputs={rgb="camera/rgb"}')   # event chain is pruned
         else:
             sets += self.event_frame_overrides(run.modality)
-            if run.condition in spec.physical:
-                # the event sensor's own physics on linear light: slow and noisy at dusk
-                sets.append('emulator.preset="physical"')
+            sets += event_sensor_overrides(self.task, run.condition)
         return self.policy_topology, common + sets + self.rate_overrides(run) + self.extra
 
     def event_frames(self, modality: str) -> dict | None:

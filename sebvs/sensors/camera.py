@@ -1,0 +1,280 @@
+"""The camera actor's rendering without its messaging: the sim's states in, the frames that
+are due out.
+
+actors/camera.py wires this to the runtime (a state message in, an emit per output), and
+sebvs.envs calls it in process (the Gymnasium environments): one code path, so the frames
+are the same bit for bit. See actors/camera.py for the outputs and the two sensors
+("ideal8", "physical").
+
+    cam = CameraCore(params, wanted={"rgb", "luma"}, seed=camera_seed)
+    for output, arrays, meta in cam.sample(state, state_meta, alloc):
+        ...                                  # alloc(output, {name: (shape, dtype)})
+    cam.close()
+
+`params` has the camera actor's Params fields (camera, rgb_hz, dvs_hz, luma_scale, sensor,
+frame_camera, frame_overrides, subframe_s, max_subframes, radiance_ratio); `alloc` gives the
+arrays a frame is rendered into (the actor's shared-memory slots, or plain arrays).
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+from typing import Callable
+
+import numpy as np
+
+from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
+from sebvs.sim.poses import StateHistory
+from sebvs.sim.render import FrameRenderer
+
+import mujoco  # noqa: E402
+
+OUTPUTS = ("rgb", "luma", "depth", "seg", "ideal")
+Alloc = Callable[[str, dict], dict]
+
+
+def plain_alloc(output: str, specs: dict) -> dict:
+    """An `alloc` of new arrays."""
+    return {name: np.empty(shape, dtype) for name, (shape, dtype) in specs.items()}
+
+
+class Rate:
+    """Decides which samples of a stream to keep for a target rate (by episode time)."""
+
+    def __init__(self, hz: float) -> None:
+        self.hz = hz
+        self.last = -1
+
+    def due(self, t_ep: float) -> bool:
+        if self.hz <= 0:
+            return True
+        i = math.floor(t_ep * self.hz + 1e-6)
+        if i != self.last:
+            self.last = i
+            return True
+        return False
+
+
+class CameraCore:
+    """Renders a scene's states with its own copy of the scene's model."""
+
+    def __init__(self, params, wanted, seed: int = 0,
+                 log: logging.Logger | None = None) -> None:
+        self.params = params
+        self.seed = seed
+        self.log = log or logging.getLogger("sebvs.camera")
+        self.key = None            # (scene name, config) of the compiled model
+        self.renderer: FrameRenderer | None = None
+        self.luma_renderer: FrameRenderer | None = None
+        if not 0 < params.luma_scale <= 1:
+            raise ValueError(f"camera: luma_scale must be in (0, 1], got {params.luma_scale}")
+        self.episode = None
+        self.last_t: float | None = None
+        self.warned_rate = False
+        self.counts = {"rgb": 0, "luma": 0, "depth": 0, "seg": 0, "ideal": 0,
+                       "no_model": 0, "subframes": 0, "clipped_px": 0}
+        self.wanted = set(wanted) & set(OUTPUTS)
+        self.physical = params.sensor == "physical"
+        self.rig = None
+        self.control_hz = 10.0     # the sim's, from the episode's first state
+        if self.physical:
+            from .framecam import preset
+            self.frame_params = preset(params.frame_camera, **params.frame_overrides)
+            # exposure (<= 0.1 s) plus readout, and one state before them
+            self.states = StateHistory(self.frame_params.exposure_max_s
+                                       + self.frame_params.readout_s + 0.05)
+
+    def _build_rig(self, frame_rate_hz: float) -> None:
+        from .rig import SensorRig
+        photometry = self.scene.photometry()
+        if self.rig is not None and self.rig.colour is self.renderer and \
+                self.rig.params.frame_rate_hz == min(self.frame_params.frame_rate_hz,
+                                                     frame_rate_hz):
+            self.rig.set_scene(self.model, photometry)
+            return
+        if self.rig is not None:
+            self.rig.close()
+        p = self.params
+        self.rig = SensorRig(self.renderer, photometry, self.frame_params, frame_rate_hz,
+                             p.subframe_s, p.max_subframes, p.radiance_ratio)
+        self.log.info("camera: physical sensor, radiance range %.3g-%.3g cd/m^2 (%.0f dB), "
+                      "frame camera %s at %g Hz", self.rig.radiance.floor_cd_m2,
+                      self.rig.radiance.top_cd_m2, self.rig.radiance.dynamic_range_db,
+                      p.frame_camera, self.rig.params.frame_rate_hz)
+
+    def build(self, scene_name: str, config: dict) -> None:
+        """Compile the scene's model for `config` (kept for the next episodes)."""
+        self.scene = make_scene(scene_name, **config)
+        self.model = self.scene.compile()
+        self.data = mujoco.MjData(self.model)
+        cam = self.params.camera or self.scene.cameras[0]
+        if cam not in self.scene.cameras:
+            raise ValueError(f"camera: {cam!r} is not one of {self.scene.cameras}")
+        self.cam = cam
+        self.h, self.w = self.scene.image_shape()
+        self.blur = self.scene.rgb_blur()
+        self.history: collections.deque = collections.deque(maxlen=max(1, self.blur))
+        k = self.params.luma_scale
+        self.lh, self.lw = max(1, round(self.h * k)), max(1, round(self.w * k))
+        # a new scene every randomised episode: the renderer keeps its GL context, and
+        # the luma renderer is a view of it (one context, one upload, one scene update)
+        if self.renderer is not None and (self.renderer.height, self.renderer.width) == \
+                (self.h, self.w):
+            self.renderer.set_model(self.model)
+        else:
+            self.close()
+            self.renderer = FrameRenderer(self.model, self.h, self.w)
+        if (self.lh, self.lw) == (self.h, self.w):
+            self.luma_renderer = None           # luma comes from the RGB render
+        elif self.luma_renderer is None or (self.luma_renderer.height,
+                                            self.luma_renderer.width) != (self.lh, self.lw):
+            self.luma_renderer = self.renderer.view(self.lh, self.lw)
+        self.key = (scene_name, config)
+        if self.physical:
+            self._build_rig(self.params.rgb_hz or float(self.control_hz))
+        self.log.info("camera: compiled %s %s, %dx%d, camera %s, blur %d", scene_name, config,
+                      self.w, self.h, cam, self.blur)
+
+    def pose(self, state: dict) -> None:
+        self.scene.set_state(self.model, self.data, state)
+        self.scene.kinematics(self.model, self.data)
+
+    def sample(self, state: dict, meta: dict, alloc: Alloc = plain_alloc
+               ) -> list[tuple[str, dict, dict]]:
+        """One state sample of the sim (its arrays and meta) -> [(output, arrays, meta)] of
+        the frames due at it, in the order the camera actor emits them."""
+        out: list[tuple[str, dict, dict]] = []
+        if "control_hz" in meta:
+            self.control_hz = meta["control_hz"]
+        if "config" in meta and (meta["scene"], meta["config"]) != self.key:
+            self.build(meta["scene"], meta["config"])
+        if self.renderer is None:
+            self.counts["no_model"] += 1      # joined mid-episode: wait for the next start
+            return out
+        ep, t_ep, control = meta.get("episode"), float(meta.get("t_ep", 0.0)), \
+            bool(meta.get("control", False))
+        p = self.params
+        if ep != self.episode:
+            self.episode = ep
+            self.rgb_rate, self.luma_rate = Rate(p.rgb_hz), Rate(p.dvs_hz)
+            self.history.clear()
+            self.last_t = None
+            if self.physical:
+                self.states.clear()
+                self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
+        # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
+        # that flag to the accumulator, which closes its windows on it.
+        want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
+        if self.last_t is not None and p.dvs_hz > 0 and not self.warned_rate \
+                and t_ep - self.last_t > 1.5 / p.dvs_hz:
+            self.warned_rate = True
+            self.log.warning("states arrive every %.4f s, slower than dvs_hz %g: raise the "
+                             "sim's render_hz", t_ep - self.last_t, p.dvs_hz)
+        self.last_t = t_ep
+        rgb_due = control if p.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
+        want_rgb = "rgb" in self.wanted and rgb_due
+        want_ideal = "ideal" in self.wanted and rgb_due
+        if self.physical and "rgb" in self.wanted:
+            self.states.add(t_ep, state)
+        # the blur history serves the ideal render (rgb too, on the 8-bit sensor; the
+        # physical camera integrates its own sub-frames from self.states)
+        if self.blur > 1 and self.wanted & ({"ideal"} if self.physical else {"rgb", "ideal"}):
+            self._remember(state)
+        if not (want_luma or want_rgb or want_ideal
+                or (rgb_due and self.wanted & {"depth", "seg"})):
+            return out
+        out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
+        if want_rgb and self.physical:
+            out.append(self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc))
+        self.pose(state)
+        r = self.renderer
+        r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
+        sharp = None          # an unblurred RGB render of this sample, if made
+        ideal_outputs = [o for o, due in (("rgb", want_rgb and not self.physical),
+                                          ("ideal", want_ideal)) if due]
+        if ideal_outputs:
+            outs = {o: alloc(o, {"rgb": ((self.h, self.w, 3), np.uint8)})
+                    for o in ideal_outputs}
+            first = outs[ideal_outputs[0]]["rgb"]
+            if self.blur > 1:
+                # the history ends with this sample, so its pose is the one left in
+                # self.data and in the scene for the luma, depth and seg renders below
+                r.rgb_blurred(self.data, self.cam, self.history, first, self.pose)
+            else:
+                sharp = r.rgb(first)
+            for o in ideal_outputs:
+                if outs[o]["rgb"] is not first:
+                    np.copyto(outs[o]["rgb"], first)
+                out.append((o, outs[o], {**out_meta, "truth": meta.get("truth")}))
+                self.counts[o] += 1
+        if want_luma and self.physical:
+            arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.float32)})
+            lum = self.rig.luminance(self.data, self.cam, self._light_scale(state),
+                                     None if self.luma_renderer is not None else arrays["luma"])
+            if self.luma_renderer is not None:
+                self.rig.luminance_at(lum, arrays["luma"])
+            self.counts["clipped_px"] += self.rig.radiance.clipped
+            out.append(("luma", arrays, {**out_meta, "units": "cd/m2"}))
+            self.counts["luma"] += 1
+        elif want_luma:
+            arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.uint8)})
+            if self.luma_renderer is not None:
+                self.luma_renderer.luma(arrays["luma"])
+            else:
+                r.luma(arrays["luma"], src=sharp)
+            out.append(("luma", arrays, out_meta))
+            self.counts["luma"] += 1
+        if rgb_due and "depth" in self.wanted:
+            arrays = alloc("depth", {"depth": ((self.h, self.w), np.float32)})
+            r.depth(arrays["depth"])
+            out.append(("depth", arrays, out_meta))
+            self.counts["depth"] += 1
+        if rgb_due and "seg" in self.wanted:
+            arrays = alloc("seg", {"seg": ((self.h, self.w, 2), np.int32)})
+            r.segmentation(arrays["seg"])
+            out.append(("seg", arrays, out_meta))
+            self.counts["seg"] += 1
+        return out
+
+    @staticmethod
+    def _light_scale(state: dict) -> float:
+        light = state.get("light")
+        return 1.0 if light is None else float(light[0])
+
+    def _frame(self, t_ep: float, meta: dict, alloc: Alloc) -> tuple[str, dict, dict]:
+        """The modelled frame camera's image at this tick: exposed up to readout_s
+        before it (sebvs.sensors.rig)."""
+        t_end = t_ep - self.rig.readout_s
+        arrays = alloc("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
+        frame = self.rig.frame(self.states, self.pose, self.data, self.cam, t_end,
+                               self._light_scale)
+        arrays["rgb"][...] = frame.image
+        self.counts["subframes"] = self.rig.subframes_rendered
+        self.counts["rgb"] += 1
+        return ("rgb", arrays, {
+            **meta, "exposure_s": frame.exposure_s, "gain_db": frame.gain_db,
+            "t_exposure_end": frame.t_end_s, "saturated": frame.saturated_fraction})
+
+    def _remember(self, state: dict) -> None:
+        """Keep a copy of this state for the blur (its arrays may be views of the sender's
+        ring slots, which it reuses); the copy the full history evicts is refilled, not
+        freed."""
+        if len(self.history) == self.history.maxlen:
+            old = self.history.popleft()
+            if old.keys() == state.keys() and all(
+                    old[k].shape == a.shape and old[k].dtype == a.dtype
+                    for k, a in state.items()):
+                for k, a in state.items():
+                    np.copyto(old[k], a)
+                self.history.append(old)
+                return
+        self.history.append({k: np.array(a) for k, a in state.items()})
+
+    def close(self) -> None:
+        if self.rig is not None:
+            self.rig.close()
+            self.rig = None
+        if self.renderer is not None:
+            self.renderer.close()           # and its view, the luma renderer
+        self.renderer = self.luma_renderer = None
