@@ -28,6 +28,7 @@ import numpy as np
 
 from sebvs.metrics import (arm_episode_summary, centre_error_px, episode_duration,
                            nav_truth_metrics)
+from sebvs.experts.arm import leading_poses
 from sebvs.runtime import Actor, Message, Range
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
@@ -194,9 +195,11 @@ class ArmTracker(EpisodeTracker):
         actions = [self.actions.get(k) for k, _, _ in rows]
         outcome = (info.get("outcome") or {}).get("outcome")
         objects = int((info.get("config") or {}).get("objects", 1))
-        summary = arm_episode_summary([t for _, t, _ in rows], [t_ep for _, _, t_ep in rows],
-                                      actions, outcome, objects, self.params.lead_s,
-                                      self._duration(rows))
+        reference = leading_poses([t["expert_pose"] for _, t, _ in rows],
+                                  [t["mode"] for _, t, _ in rows],
+                                  [t_ep for _, _, t_ep in rows], self.params.lead_s)
+        summary = arm_episode_summary([t for _, t, _ in rows], reference, actions, outcome,
+                                      objects, self.params.lead_s, self._duration(rows))
         missing = sum(a is None for a in actions)
         if missing:
             self.log.warning("episode %s: %d of %d ticks had no pose", info.get("seed"),

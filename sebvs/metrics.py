@@ -118,18 +118,16 @@ def nav_truth_metrics(truths: list, duration_s: float) -> dict:
                                [t["visible"] for t in truths], (w, h), duration_s).as_dict()
 
 
-def arm_episode_summary(truths: list, times: list, actions: list, outcome: str | None,
+def arm_episode_summary(truths: list, reference, actions: list, outcome: str | None,
                         objects: int, lead_s: float, duration_s: float) -> dict:
     """Table 5 of one arm episode: {"metrics", "trace_error_mm"}, what the arm tracker
     records and the arm environment's episode metrics (sebvs.envs).
 
-    truths [T] the control ticks' arm truth dicts, times [T] their t_ep (s), actions [T]
-    the pose commanded at each tick (None where none came), outcome the scene's finish()
-    outcome. Each pose is scored against the task's pose from truth, led by ``lead_s``
-    as the expert that made the labels leads a moving cube."""
-    from sebvs.experts.arm import leading_poses
-    reference = leading_poses([t["expert_pose"] for t in truths], [t["mode"] for t in truths],
-                              list(times), lead_s)
+    truths [T] the control ticks' arm truth dicts, reference [T, 6] the task's pose at
+    each tick (sebvs.experts.arm.leading_poses of the truths' expert_pose, led by
+    ``lead_s`` as the expert that made the labels leads a moving cube), actions [T] the
+    pose commanded at each tick (None where none came), outcome the scene's finish()
+    outcome."""
     kept = [k for k, a in enumerate(actions) if a is not None]
     pred = np.array([np.asarray(actions[k], np.float64).reshape(6) for k in kept]).reshape(-1, 6)
     expert = np.array([reference[k] for k in kept], dtype=np.float64).reshape(-1, 6)

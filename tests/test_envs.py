@@ -53,7 +53,7 @@ def test_without_gymnasium_the_import_names_the_extra_in_one_line():
             "    print(exc)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
-    assert out.stdout.strip() == "sebvs.envs needs gymnasium: install 'sebvs[gym]'"
+    assert out.stdout.strip() == "sebvs.envs needs gymnasium: pip install 'sebvs[gym]'"
 
 
 @pytest.mark.parametrize("task", ["nav", "arm"])
@@ -186,8 +186,11 @@ def test_the_expert_needs_the_privileged_view_and_grasps_through_the_arm_env():
 
 
 def test_an_async_vector_of_two_envs_steps_and_resets_itself():
+    # spawned workers: a worker forked from a process that has rendered (this one, in the
+    # tests before) inherits its GL state and hangs; "module:id" registers the ids there
     envs = gym.vector.AsyncVectorEnv(
-        [lambda: gym.make("SEBVS/ERPNav-v0", width=48, height=48, episode_s=0.3)] * 2)
+        [lambda: gym.make("sebvs.envs:SEBVS/ERPNav-v0", width=48, height=48,
+                          episode_s=0.3)] * 2, context="spawn")
     try:
         obs, infos = envs.reset(seed=[1, 2])
         assert obs["rgb"].shape == (2, 48, 48, 3) and obs["events"].shape == (2, 2, 48, 48)

@@ -12,10 +12,10 @@ The step runs the topologies' own scene, camera, emulator and accumulator code i
 process (sebvs.sim.stepper, sebvs.sensors.camera, sebvs.dvs.stream). Needs the optional
 extra: pip install 'sebvs[gym]'.
 """
-try:
-    import gymnasium
-except ImportError:     # one line, not a traceback into gymnasium's absence
-    raise ImportError("sebvs.envs needs gymnasium: install 'sebvs[gym]'") from None
+from sebvs.extras import require
+
+# one line naming the extra, not a traceback, when gymnasium is not installed
+gymnasium = require("gymnasium", "gymnasium", "gym", "sebvs.envs")
 
 from .erp import ERPArmEnv, ERPEnv, ERPNavEnv, OBS_KEYS  # noqa: E402
 from .expert import ExpertPolicy  # noqa: E402

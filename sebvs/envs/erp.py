@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import gymnasium
 import numpy as np
@@ -464,10 +463,14 @@ class ERPArmEnv(ERPEnv):
         return 1.0 if outcome.get("outcome") in ("lifted_and_held", "home_correct") else 0.0
 
     def _summary(self, outcome: dict, duration_s: float) -> dict:
+        from sebvs.experts.arm import leading_poses
         from sebvs.metrics import arm_episode_summary
+        truths = [t for t, _ in self._rows]
+        lead_s = self.settings["tracker"].lead_s
+        reference = leading_poses([t["expert_pose"] for t in truths],
+                                  [t["mode"] for t in truths], [t for _, t in self._rows],
+                                  lead_s)
         actions = self._actions[:len(self._rows)]
         actions += [None] * (len(self._rows) - len(actions))
-        return arm_episode_summary([t for t, _ in self._rows], [t for _, t in self._rows],
-                                   actions, outcome.get("outcome"),
-                                   int(self.sim.config.get("objects", 1)),
-                                   self.settings["tracker"].lead_s, duration_s)
+        return arm_episode_summary(truths, reference, actions, outcome.get("outcome"),
+                                   int(self.sim.config.get("objects", 1)), lead_s, duration_s)
