@@ -10,6 +10,9 @@ Outputs, each rendered only when some actor consumes it (self.consumed):
   luma   {"luma": (h, w) uint8} (H, W times luma_scale) at dvs_hz (0: every state sample) and on every control
          sample, never blurred. meta:
          episode, control (True on the sample of a control tick), t_ep. tick = the sim's.
+         luma_sampling "adaptive": at the times sebvs.dvs.adaptive asks for instead of
+         dvs_hz, those between two states rendered at interpolated poses and sent with
+         their own t_sim and t_ep and the earlier state's tick (docs/dvs.md)
   depth  {"depth": (H, W) float32, m} and seg {"seg": (H, W, 2) int32 [id, mjtObj type]}
          at the RGB times.
   ideal  {"rgb": (H, W, 3) uint8}: the ideal 8-bit render at the RGB times, whatever the
@@ -60,10 +63,20 @@ class Camera(Actor):
                                    # exposure then ghosts instead of smearing)
         radiance_ratio: Annotated[float, Range(gt=1, le=64)] = 16.0
                                    # exposure ratio between the radiance render's channels
+        # luma times: "fixed" at dvs_hz; "adaptive" when the brightness could have changed
+        # by luma_fraction of luma_threshold (the emulator's contrast threshold), between
+        # luma_floor_hz and luma_ceiling_hz, rendered between the sim's states at poses
+        # interpolated to those times (sebvs/dvs/adaptive.py, docs/dvs.md); dvs_hz unused
+        luma_sampling: Literal["fixed", "adaptive"] = "fixed"
+        luma_fraction: Annotated[float, Range(gt=0, le=10)] = 0.5
+        luma_threshold: Annotated[float, Range(gt=0, le=10)] = 0.3
+        luma_floor_hz: Annotated[float, Range(gt=0, le=100_000)] = 20.0
+        luma_ceiling_hz: Annotated[float, Range(gt=0, le=100_000)] = 1000.0
 
     async def setup(self) -> None:
         wanted = {o for o in self.outputs if o in self.consumed}
         self.core = CameraCore(self.params, wanted, seed=self.seed, log=self.log)
+        self.tick = None           # the previous state's, for luma between two states
         self.log.info("camera: rendering %s, sensor %s", sorted(wanted) or "nothing",
                       self.params.sensor)
 
@@ -72,8 +85,14 @@ class Camera(Actor):
         return self.core.counts
 
     async def on_state(self, msg: Message) -> None:
+        t_ep = float(msg.meta.get("t_ep", 0.0))       # as the core reads it
         for output, arrays, meta in self.core.sample(msg.arrays, msg.meta, self.reserve):
-            await self.emit(output, arrays, parent=msg, meta=meta)
+            if meta.get("t_ep") == t_ep or msg.t_sim is None:
+                await self.emit(output, arrays, parent=msg, meta=meta)
+            else:     # adaptive luma between the previous state and this one: its own time
+                await self.emit(output, arrays, parent=msg, meta=meta,
+                                t_sim=msg.t_sim + (meta["t_ep"] - t_ep), tick=self.tick)
+        self.tick = msg.tick
 
     async def teardown(self) -> None:
         self.core.close()

@@ -12,8 +12,12 @@ are the same bit for bit. See actors/camera.py for the outputs and the two senso
     cam.close()
 
 `params` has the camera actor's Params fields (camera, rgb_hz, dvs_hz, luma_scale, sensor,
-frame_camera, frame_overrides, subframe_s, max_subframes, radiance_ratio); `alloc` gives the
-arrays a frame is rendered into (the actor's shared-memory slots, or plain arrays).
+frame_camera, frame_overrides, subframe_s, max_subframes, radiance_ratio, and luma_sampling
+with luma_fraction, luma_threshold, luma_floor_hz, luma_ceiling_hz; without luma_sampling:
+"fixed"); `alloc` gives the arrays a frame is rendered into (the actor's shared-memory
+slots, or plain arrays). With luma_sampling "adaptive" (sebvs/dvs/adaptive.py) a state can
+also bring luma samples from between the previous state and itself: each with its own
+meta t_ep (earlier than the state's), control False, before the state's own luma.
 """
 from __future__ import annotations
 
@@ -24,8 +28,9 @@ from typing import Callable
 
 import numpy as np
 
+from sebvs.dvs.adaptive import LumaSampler, SamplerParams, log_luminance
 from sebvs.sim import make_scene  # sets MUJOCO_GL before mujoco is imported
-from sebvs.sim.poses import StateHistory
+from sebvs.sim.poses import StateHistory, interpolate_state
 from sebvs.sim.render import FrameRenderer
 
 import mujoco  # noqa: E402
@@ -78,6 +83,16 @@ class CameraCore:
         self.physical = params.sensor == "physical"
         self.rig = None
         self.control_hz = 10.0     # the sim's, from the episode's first state
+        # luma_sampling "adaptive" (sebvs/dvs/adaptive.py): luma when the brightness could
+        # have changed by a fraction of the emulator's threshold, rendered between the sim's
+        # states at interpolated poses; the previous state (t_ep, copy) to interpolate from
+        self.sampler: LumaSampler | None = None
+        if getattr(params, "luma_sampling", "fixed") == "adaptive":
+            self.sampler = LumaSampler(SamplerParams(
+                fraction=params.luma_fraction, threshold=params.luma_threshold,
+                floor_hz=params.luma_floor_hz, ceiling_hz=params.luma_ceiling_hz))
+            self.counts["luma_between"] = 0
+        self.previous: tuple[float, dict] | None = None
         if self.physical:
             from .framecam import preset
             self.frame_params = preset(params.frame_camera, **params.frame_overrides)
@@ -160,12 +175,23 @@ class CameraCore:
             self.rgb_rate, self.luma_rate = Rate(p.rgb_hz), Rate(p.dvs_hz)
             self.history.clear()
             self.last_t = None
+            self.previous = None
+            if self.sampler is not None:
+                self.sampler.reset()
             if self.physical:
                 self.states.clear()
                 self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
         # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
         # that flag to the accumulator, which closes its windows on it.
-        want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
+        between: list[tuple[str, dict, dict]] = []
+        if self.sampler is None:
+            want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
+        elif "luma" in self.wanted:
+            between = self._luma_between(state, ep, t_ep)
+            self.previous = (t_ep, {k: np.array(a) for k, a in state.items()})
+            want_luma = control or self.sampler.due(t_ep)
+        else:
+            want_luma = False
         if self.last_t is not None and p.dvs_hz > 0 and not self.warned_rate \
                 and t_ep - self.last_t > 1.5 / p.dvs_hz:
             self.warned_rate = True
@@ -183,7 +209,7 @@ class CameraCore:
             self._remember(state)
         if not (want_luma or want_rgb or want_ideal
                 or (rgb_due and self.wanted & {"depth", "seg"})):
-            return out
+            return between
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
         if want_rgb and self.physical:
             out.append(self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc))
@@ -208,6 +234,7 @@ class CameraCore:
                     np.copyto(outs[o]["rgb"], first)
                 out.append((o, outs[o], {**out_meta, "truth": meta.get("truth")}))
                 self.counts[o] += 1
+        out.extend(between)             # luma in time order: those before this state first
         if want_luma and self.physical:
             arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.float32)})
             lum = self.rig.luminance(self.data, self.cam, self._light_scale(state),
@@ -217,6 +244,8 @@ class CameraCore:
             self.counts["clipped_px"] += self.rig.radiance.clipped
             out.append(("luma", arrays, {**out_meta, "units": "cd/m2"}))
             self.counts["luma"] += 1
+            if self.sampler is not None:
+                self.sampler.observe(t_ep, log_luminance(arrays["luma"]))
         elif want_luma:
             arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.uint8)})
             if self.luma_renderer is not None:
@@ -225,6 +254,8 @@ class CameraCore:
                 r.luma(arrays["luma"], src=sharp)
             out.append(("luma", arrays, out_meta))
             self.counts["luma"] += 1
+            if self.sampler is not None:
+                self.sampler.observe(t_ep, arrays["luma"])
         if rgb_due and "depth" in self.wanted:
             arrays = alloc("depth", {"depth": ((self.h, self.w), np.float32)})
             r.depth(arrays["depth"])
@@ -235,6 +266,38 @@ class CameraCore:
             r.segmentation(arrays["seg"])
             out.append(("seg", arrays, out_meta))
             self.counts["seg"] += 1
+        return out
+
+    def _luma_between(self, state: dict, ep, t_ep: float) -> list[tuple[str, dict, dict]]:
+        """The luma samples the adaptive sampler asks for between the previous state and
+        this one, each rendered at the pose interpolated to its time (sebvs.sim.poses) into
+        a plain array (several per state: the output's one reserved slot cannot hold them);
+        meta t_ep is the sample's own time, control False."""
+        out: list[tuple[str, dict, dict]] = []
+        if self.previous is None or not t_ep > self.previous[0]:
+            return out
+        t0, before = self.previous
+        while (ts := self.sampler.pending_before(t_ep)) is not None:
+            posed = interpolate_state(self.model, before, state, (ts - t0) / (t_ep - t0))
+            self.pose(posed)
+            self.renderer.update(self.data, self.cam)
+            meta = {"episode": ep, "control": False, "t_ep": ts}
+            if self.physical:
+                luma = np.empty((self.lh, self.lw), np.float32)
+                lum = self.rig.luminance(self.data, self.cam, self._light_scale(posed),
+                                         None if self.luma_renderer is not None else luma)
+                if self.luma_renderer is not None:
+                    self.rig.luminance_at(lum, luma)
+                self.counts["clipped_px"] += self.rig.radiance.clipped
+                meta["units"] = "cd/m2"
+                self.sampler.observe(ts, log_luminance(luma))
+            else:
+                luma = np.empty((self.lh, self.lw), np.uint8)
+                (self.luma_renderer or self.renderer).luma(luma)
+                self.sampler.observe(ts, luma)
+            out.append(("luma", {"luma": luma}, meta))
+            self.counts["luma"] += 1
+            self.counts["luma_between"] += 1
         return out
 
     @staticmethod
