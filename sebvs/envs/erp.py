@@ -246,11 +246,13 @@ class ERPEnv(gymnasium.Env):
         t_sim = self.t_offset + data.time
         for output, arrays, m in self.camera.sample(state, meta, self._alloc):
             if output == "luma":
+                # the sample's own time (the state's, t_ep = data.time, on the fixed rate)
+                t_out = self.t_offset + m["t_ep"]
                 frame = arrays["luma"]
-                events = self.sensor.frame(frame, t_sim, m["episode"], m.get("units"))
+                events = self.sensor.frame(frame, t_out, m["episode"], m.get("units"))
                 self.frames.add(events, m["episode"], self.sensor.geometry_meta(frame))
                 if m["control"]:
-                    self._parts["events"] = self.frames.frame(t_sim)
+                    self._parts["events"] = self.frames.frame(t_out)
             else:
                 self._parts[output] = arrays[output if output != "ideal" else "rgb"]
         if meta["control"]:
