@@ -82,13 +82,20 @@ def test_check_env_passes_with_a_voxel_grid_and_the_physical_sensor(task):
     env.close()
 
 
-@pytest.mark.parametrize("task,condition", [("nav", "flicker"), ("arm", "fast_physical")])
-def test_the_env_plays_the_topology_s_frames_and_event_frames(tmp_path, task, condition):
+ADAPTIVE = ('camera.luma_sampling="adaptive"',)
+
+
+@pytest.mark.parametrize("task,condition,extra", [("nav", "flicker", ()),
+                                                  ("arm", "fast_physical", ()),
+                                                  ("nav", "fast_flicker", ADAPTIVE)],
+                         ids=["nav-flicker", "arm-fast_physical", "nav-fast_flicker-adaptive-luma"])
+def test_the_env_plays_the_topology_s_frames_and_event_frames(tmp_path, task, condition,
+                                                               extra):
     """The lockstep topology (`sebvs eval`'s no-action run, event chain kept, a probe
     saving every tick's RGB and event frame) and the env stepped with the same idle
     command: the same frames bit for bit, for the same topology seed."""
     seed, small = 5, ["sim.config.width=48", "sim.config.height=48",
-                      "accumulator.out_width=48", "accumulator.out_height=48"]
+                      "accumulator.out_width=48", "accumulator.out_height=48", *extra]
     with tool_module("bench/bench_env") as bench:
         out = bench.run_topology(task, condition, None, seed, 0.5, tmp_path, max_arrays=1000,
                                  extra=small)
@@ -96,7 +103,8 @@ def test_the_env_plays_the_topology_s_frames_and_event_frames(tmp_path, task, co
     for i, e in enumerate(out["entries"]):
         name = "rgb" if e["input"] == "rgb" else "frame"
         by_input[e["input"]].append((e["tick"], out["arrays"][f"{i}.{e['input']}.{name}"]))
-    env = gym.make(ENV_IDS[task], condition=condition, width=48, height=48, episode_s=0.5)
+    env = gym.make(ENV_IDS[task], condition=condition, width=48, height=48, episode_s=0.5,
+                   overrides=extra)
     idle = env.unwrapped.sim.scene.idle_command().astype(np.float32)
     obs, _ = env.reset(seed=seed)
     frames = [obs]

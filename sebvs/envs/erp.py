@@ -244,10 +244,12 @@ class ERPEnv(gymnasium.Env):
         state = sim.scene.state(data)
         meta = sim.sample_meta(self.episode)
         t_sim = self.t_offset + data.time
+        t_state = float(meta["t_ep"])
         for output, arrays, m in self.camera.sample(state, meta, self._alloc):
             if output == "luma":
-                # the sample's own time (the state's, t_ep = data.time, on the fixed rate)
-                t_out = self.t_offset + m["t_ep"]
+                # the state's time, or (adaptive luma sampling, between two states) its
+                # own, as the camera actor stamps it
+                t_out = t_sim if m["t_ep"] == t_state else t_sim + (m["t_ep"] - t_state)
                 frame = arrays["luma"]
                 events = self.sensor.frame(frame, t_out, m["episode"], m.get("units"))
                 self.frames.add(events, m["episode"], self.sensor.geometry_meta(frame))
