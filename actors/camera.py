@@ -71,7 +71,7 @@ class Camera(Actor):
         luma_fraction: Annotated[float, Range(gt=0, le=10)] = 0.5
         luma_threshold: Annotated[float, Range(gt=0, le=10)] = 0.3
         luma_floor_hz: Annotated[float, Range(gt=0, le=100_000)] = 20.0
-        luma_ceiling_hz: Annotated[float, Range(gt=0, le=100_000)] = 1000.0
+        luma_ceiling_hz: Annotated[float, Range(gt=0, le=100_000)] = 500.0
 
     async def setup(self) -> None:
         wanted = {o for o in self.outputs if o in self.consumed}

@@ -252,7 +252,8 @@ def nav_state_messages(command, seconds: float, still: bool = False, hz: float =
 
 def test_camera_samples_luma_between_states_when_the_view_turns():
     from tests.test_camera_output import camera_outputs
-    params = dict(luma_sampling="adaptive", luma_scale=0.5, luma_fraction=0.35)
+    params = dict(luma_sampling="adaptive", luma_scale=0.5, luma_fraction=0.35,
+                  luma_ceiling_hz=1000.0)
     turning = nav_state_messages([0.0, 1.0], 0.5)
     luma = [e for e in camera_outputs(turning, {"luma"}, **params) if e[0] == "luma"]
     still = [e for e in camera_outputs(nav_state_messages([0.0, 0.0], 0.5, still=True),

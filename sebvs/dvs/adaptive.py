@@ -64,7 +64,7 @@ class SamplerParams:
     threshold: float = 0.3       # C, log units: the emulator's contrast threshold (its
                                  # pos_thres / neg_thres; the smaller if they differ)
     floor_hz: float = 20.0       # at least this many samples per second (a still scene)
-    ceiling_hz: float = 1000.0   # at most this many (a fast one)
+    ceiling_hz: float = 500.0    # at most this many (a fast one)
 
     def validate(self) -> "SamplerParams":
         for name, v in asdict(self).items():
