@@ -1,7 +1,9 @@
-"""Actors for tools/bench_hops.py: a paced payload source and a sink that logs hop latency."""
+"""Actors for the benchmarks: a paced payload source and a sink that logs hop latency
+(tools/bench_hops.py), and a tap that keeps an emulator's events (tools/bench_sim.py)."""
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,3 +68,55 @@ class LatencySink(Actor):
 
     async def teardown(self) -> None:
         np.save(Path(self.params.path), np.asarray(self.latencies + [-self.bad - 1], np.int64))
+
+
+class EventTap(Actor):
+    """Keeps every event the emulator sends and writes them once the run ends:
+    `<path>.npy` (EVENT_DTYPE, in arrival order) and `<path>.json` ({"packets": n,
+    "sensor": [w, h]}). tools/bench_sim.py compares two runs' streams with
+    sebvs.dvs.fidelity.
+
+    With `action` wired (the expert's) and the sim's action taken from this tap's, it paces
+    a lockstep run to the event chain: the action of tick k goes on once the emulator's
+    packet of tick k's control sample has come, so no luma frame is overwritten in the
+    camera's ring while the emulator runs behind (a 1 kHz camera outruns it), and the run's
+    speed is that of the whole chain."""
+    inputs = ("events", "action")
+    outputs = ("action",)
+
+    @dataclass
+    class Params:
+        path: str = "events"
+
+    async def setup(self) -> None:
+        self.packets: list[np.ndarray] = []
+        self.sensor = None
+        self.done_tick = -1                 # the newest tick whose control packet came
+        self.waiting: list[Message] = []    # actions of ticks not done yet
+
+    async def on_events(self, msg: Message) -> None:
+        self.packets.append(np.array(msg.arrays["events"]))   # out of the sender's slot
+        self.sensor = msg.meta.get("event_sensor", self.sensor)
+        if msg.meta.get("control") and msg.tick is not None:
+            self.done_tick = max(self.done_tick, msg.tick)
+            ready = [m for m in self.waiting if m.tick <= self.done_tick]
+            self.waiting = [m for m in self.waiting if m.tick > self.done_tick]
+            for m in ready:
+                await self.emit("action", m.arrays, parent=m)
+
+    async def on_action(self, msg: Message) -> None:
+        if msg.tick is None or msg.tick <= self.done_tick:
+            await self.emit("action", msg.arrays, parent=msg)
+        else:
+            self.waiting.append(msg)
+
+    async def teardown(self) -> None:
+        from sebvs.dvs.emulator import EVENT_DTYPE
+        path = Path(self.params.path)
+        events = np.concatenate(self.packets) if self.packets else np.zeros(0, EVENT_DTYPE)
+        np.save(path.with_suffix(".npy"), events)
+        path.with_suffix(".json").write_text(json.dumps({"packets": len(self.packets),
+                                                         "sensor": self.sensor}))
+
+    def stats(self) -> dict:
+        return {"packets": len(self.packets), "waiting": len(self.waiting)}

@@ -21,6 +21,15 @@ sensors   nav recording at dvs_hz 200 with the camera's sensor "ideal8" and "phy
           (sebvs/sensors: radiance render per luma sample, modelled frame camera with
           sub-frames, emulator preset "physical"), alternating, one episode each per
           repeat: the real-time factors' medians and their ratio (issue 34: >= 0.7)
+adaptive  issue 37: adaptive luma sampling (camera luma_sampling "adaptive") against a dense
+          fixed-rate reference (luma at every 1 kHz sim state), on the nav and arm expert
+          topologies with the event chain (80 px luma, paper preset, linear low-pass hold)
+          and an event tap that paces the lockstep sim to the chain; the two alternate per
+          repeat. One row per scene with exactly: scene, real_time_factor,
+          reference_real_time_factor, event_count_ratio, count_correlation,
+          median_time_error_ms (sebvs/dvs/fidelity.py); `adaptive_detail` beside it (sample
+          rates, matched fraction, runs). Without --quick also nav_record with either
+          sampling, alternating (rows in `pipeline` with luma_sampling)
 scene switch  milliseconds from a new model to its first frame: a fresh renderer against
           FrameRenderer.set_model() in a warm GL context (what a randomised recording's
           camera pays per episode)
@@ -34,7 +43,8 @@ each repeat, and reports the median per placement; `--pipeline-only` skips physi
 rendering.
 
     tools/bench_sim.py [--quick] [--json FILE] [--placement P[,P...]] [--pipeline-only]
-                       [--ceiling-only] [--sensors-only]
+                       [--ceiling-only] [--sensors-only] [--adaptive-only | --no-adaptive]
+                       [--adaptive-set KEY=VALUE ...]
 """
 from __future__ import annotations
 
@@ -312,6 +322,124 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
             "frames": frames, "wall_s_incl_startup": round(wall, 2)}
 
 
+# Adaptive luma sampling against a dense fixed-rate reference (issue 37): each scene's
+# expert topology with the event chain above, its events kept by a tap beside the
+# emulator; the reference renders luma at every 1 kHz sim state, the adaptive camera
+# between the topology's own states (docs/dvs.md, "Adaptive sampling"). Both emulators
+# use the linear hold; lockstep makes the two runs drive the same trajectory.
+ADAPTIVE_SCENES = {
+    # scene: (topology, its --set, seconds per episode full / quick, episodes full / quick)
+    "nav": ("nav_expert.toml", [], (20.0, 5.0), (1, 1)),
+    # the arm holds HOME while the expert aims (the grasp comes after the episode), so a
+    # static belt makes no events at all: three cubes on the moving belt, 8 cm/s
+    "arm": ("arm_expert.toml",
+            ['sim.config={conveyor="moving", objects=3, width=160, height=160}'],
+            (4.0, 4.0), (2, 1)),
+}
+REFERENCE_HZ = 1000.0
+EVENT_TAP = [
+    # the tap keeps the events and passes the expert's action on once its tick's events
+    # have come: the lockstep sim waits for the event chain, so no luma frame is lost
+    # while the emulator runs behind a 1 kHz camera (a loss would read as infidelity)
+    'tap.run="actors.bench:EventTap"', 'tap.process="work"',
+    'tap.inputs={events={from="emulator/events", queue=100000}, action="expert/action"}',
+    'sim.inputs={action="tap/action"}', "sim.linger_s=2.0",
+    'emulator.inputs={luma={from="camera/luma", queue=100000}}',
+    'emulator.overrides={downsample=1.0, lowpass_hold="linear"}',
+]
+
+
+def _adaptive_run(topology: str, seconds: float, episodes: int, sets: list[str]) -> dict:
+    """One run of `topology` with the event chain and the tap: its real-time factor (from
+    the first RGB frame to the last RGB or event frame, so an event chain that lags
+    counts) and its events."""
+    from sebvs.runtime.supervisor import run_topology
+    with tempfile.TemporaryDirectory() as tmp:
+        probe, tap = Path(tmp) / "probe", Path(tmp) / "tap"
+        overrides = [*EVENT_CHAIN, *EVENT_TAP, f"probe.path={json.dumps(str(probe))}",
+                     f"tap.path={json.dumps(str(tap))}", f"sim.episode_s={seconds}",
+                     f"sim.episodes={episodes}", 'tracker.path=""', *sets]
+        run_topology(ROOT / "topologies" / topology, overrides, duration_s=600, runs_dir=tmp)
+        entries = json.loads(probe.with_suffix(".json").read_text())
+        events = np.load(tap.with_suffix(".npy"))
+        info = json.loads(tap.with_suffix(".json").read_text())
+    rgb = [e for e in entries if e["input"] == "rgb"]
+    frames = [e for e in entries if e["input"] == "events"]
+    end = max(e["recv_ns"] for e in rgb + frames)
+    wall = (end - rgb[0]["recv_ns"]) / 1e9
+    sim = rgb[-1]["t_sim"] - rgb[0]["t_sim"]
+    w, h = info["sensor"]
+    return {"real_time_factor": sim / wall if wall > 0 else float("nan"),
+            "events": events, "shape": (h, w), "luma_frames": info["packets"],
+            "ticks": len(rgb), "event_frames": len(frames), "sim_s": sim}
+
+
+def bench_adaptive(scene: str, quick: bool, repeats: int, sets: list[str] = ()) -> tuple:
+    """Adaptive sampling on `scene`'s expert topology against the 1 kHz reference, the two
+    alternating `repeats` times: (row, detail). The row has exactly the issue's keys; the
+    detail adds the sample rates, the matched fraction and the spread of the runs."""
+    from sebvs.dvs.fidelity import compare_streams
+    topology, scene_sets, secs, eps = ADAPTIVE_SCENES[scene]
+    seconds, episodes = secs[quick], eps[quick]
+    reference_sets = [*scene_sets, f"sim.render_hz={REFERENCE_HZ}",
+                      f"camera.dvs_hz={REFERENCE_HZ}", 'camera.luma_sampling="fixed"']
+    adaptive_sets = [*scene_sets, 'camera.luma_sampling="adaptive"', *sets]
+    runs: dict[str, list[dict]] = {"reference": [], "adaptive": []}
+    figures = []
+    for _ in range(repeats):
+        ref = _adaptive_run(topology, seconds, episodes, reference_sets)
+        ada = _adaptive_run(topology, seconds, episodes, adaptive_sets)
+        runs["reference"].append(ref)
+        runs["adaptive"].append(ada)
+        figures.append(compare_streams(ada["events"], ref["events"], ref["shape"]))
+        print(f"adaptive {scene}: {ada['real_time_factor']:.2f}x real time "
+              f"({ada['luma_frames'] / ada['sim_s']:.0f} luma/s), reference "
+              f"{ref['real_time_factor']:.2f}x; events {figures[-1].count_ratio:.4f} of the "
+              f"reference, correlation {figures[-1].count_correlation:.4f}, median time error "
+              f"{figures[-1].median_time_error_ms:.3f} ms", flush=True)
+
+    def med(values):
+        return round(statistics.median(values), 4)
+    row = {"scene": scene,
+           "real_time_factor": med([r["real_time_factor"] for r in runs["adaptive"]]),
+           "reference_real_time_factor": med([r["real_time_factor"]
+                                              for r in runs["reference"]]),
+           "event_count_ratio": med([f.count_ratio for f in figures]),
+           "count_correlation": med([f.count_correlation for f in figures]),
+           "median_time_error_ms": med([f.median_time_error_ms for f in figures])}
+    # context, once: a fixed 200 Hz camera (today's pipeline rate) against the same
+    # reference, with the emulator's default step hold (today's) and the linear hold
+    fixed = {}
+    for hold in ("step", "linear"):
+        run = _adaptive_run(topology, seconds, episodes, [
+            *scene_sets, "sim.render_hz=200.0", "camera.dvs_hz=200.0",
+            f'emulator.overrides={{downsample=1.0, lowpass_hold="{hold}"}}'])
+        f = compare_streams(run["events"], runs["reference"][0]["events"],
+                            runs["reference"][0]["shape"])
+        fixed[f"fixed_200hz_{hold}_hold"] = {
+            "real_time_factor": round(run["real_time_factor"], 3),
+            "event_count_ratio": round(f.count_ratio, 4),
+            "count_correlation": round(f.count_correlation, 4),
+            "median_time_error_ms": round(f.median_time_error_ms, 4)}
+        print(f"fixed 200 Hz {scene}, {hold} hold: {fixed[f'fixed_200hz_{hold}_hold']}",
+              flush=True)
+    detail = {"scene": scene, "topology": topology, "episodes": episodes, **fixed,
+              "episode_s": seconds, "adaptive_sets": adaptive_sets,
+              "luma_per_sim_s": med([r["luma_frames"] / r["sim_s"] for r in runs["adaptive"]]),
+              "reference_luma_per_sim_s": med([r["luma_frames"] / r["sim_s"]
+                                               for r in runs["reference"]]),
+              "events": [f.events for f in figures],
+              "reference_events": [f.reference_events for f in figures],
+              "matched_fraction": med([f.matched_fraction for f in figures]),
+              "real_time_factor_runs": [round(r["real_time_factor"], 3)
+                                        for r in runs["adaptive"]],
+              "reference_real_time_factor_runs": [round(r["real_time_factor"], 3)
+                                                  for r in runs["reference"]],
+              "event_frames_per_tick": [f"{r['event_frames']}/{r['ticks']}"
+                                        for r in runs["adaptive"] + runs["reference"]]}
+    return row, detail
+
+
 PHYSICAL_SENSORS = ('camera.sensor="physical"', 'emulator.preset="physical"')
 
 
@@ -342,6 +470,14 @@ def main() -> int:
                     help="only the compute ceiling (no physics, render or topology rows)")
     ap.add_argument("--sensors-only", action="store_true",
                     help="only the ideal8 / physical sensor recording comparison")
+    ap.add_argument("--adaptive-only", action="store_true",
+                    help="only adaptive luma sampling against the 1 kHz reference (and, "
+                         "without --quick, recording with it)")
+    ap.add_argument("--no-adaptive", action="store_true",
+                    help="skip adaptive luma sampling")
+    ap.add_argument("--adaptive-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a further --set for the adaptive runs, e.g. "
+                         "camera.luma_fraction=0.3 (repeatable)")
     ap.add_argument("--placement", default="",
                     help="comma-separated [topology] placements to compare, alternating "
                          "(isolated, auto); default: the topology files' own")
@@ -349,7 +485,7 @@ def main() -> int:
                     help="pipeline runs per placement (default 1 with --quick, else 3)")
     args = ap.parse_args()
     steps, frames, repeats = (1000, 100, 3) if args.quick else (5000, 300, 5)
-    out: dict = {"physics": [], "render": [], "pipeline": [],
+    out: dict = {"physics": [], "render": [], "pipeline": [], "adaptive": [],
                  "config": {"quick": args.quick, "repeats": repeats, "steps": steps,
                             "frames": frames, "statistic": "median"}}
     notes = []
@@ -362,6 +498,8 @@ def main() -> int:
             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
             Path(args.json).write_text(json.dumps(out, indent=1))
         return 0
+    if args.adaptive_only:
+        args.pipeline_only = args.no_pipeline = True
     figures = not (args.pipeline_only or args.ceiling_only)   # physics, render, switch rows
     for name in SCENES if figures else ():
         try:
@@ -438,6 +576,34 @@ def main() -> int:
                 summary[key] = {"runs": rates, "median": statistics.median(rates)}
                 print(f"median {key}: {summary[key]['median']}x real time "
                       f"(runs {rates})", flush=True)
+    if not (args.no_adaptive or args.ceiling_only):
+        # beside the fixed-rate pipeline rows: issue 37's adaptive rows (exactly its keys)
+        # and what they rest on (sample rates, matched fraction, run spread)
+        out["adaptive_detail"] = []
+        for scene in ADAPTIVE_SCENES:
+            try:
+                row, detail = bench_adaptive(scene, args.quick,
+                                             args.repeats or (1 if args.quick else 3),
+                                             args.adaptive_set)
+                out["adaptive"].append(row)
+                out["adaptive_detail"].append(detail)
+                print(f"adaptive {json.dumps(row)}", flush=True)
+            except Exception as exc:
+                notes.append(f"adaptive {scene}: {type(exc).__name__}: {exc}")
+        if not args.quick:
+            try:
+                sets = ['camera.luma_sampling="adaptive"',
+                        'emulator.overrides={downsample=1.0, lowpass_hold="linear"}',
+                        *args.adaptive_set]
+                for _ in range(args.repeats or 2):
+                    for name, extra in (("fixed", []), ("adaptive", sets)):
+                        row = bench_record(2, 20.0, sets=extra)
+                        row["luma_sampling"] = name
+                        out["pipeline"].append(row)
+                        print(f"record [{name}] {row['real_time_factor']}x real time",
+                              flush=True)
+            except Exception as exc:
+                notes.append(f"record adaptive: {type(exc).__name__}: {exc}")
     if notes:
         out["notes"] = notes
         for n in notes:
