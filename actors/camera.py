@@ -68,7 +68,7 @@ class Camera(Actor):
         # luma_floor_hz and luma_ceiling_hz, rendered between the sim's states at poses
         # interpolated to those times (sebvs/dvs/adaptive.py, docs/dvs.md); dvs_hz unused
         luma_sampling: Literal["fixed", "adaptive"] = "fixed"
-        luma_fraction: Annotated[float, Range(gt=0, le=10)] = 0.5
+        luma_fraction: Annotated[float, Range(gt=0, le=10)] = 0.35
         luma_threshold: Annotated[float, Range(gt=0, le=10)] = 0.3
         luma_floor_hz: Annotated[float, Range(gt=0, le=100_000)] = 20.0
         luma_ceiling_hz: Annotated[float, Range(gt=0, le=100_000)] = 500.0

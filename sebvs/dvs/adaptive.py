@@ -59,7 +59,7 @@ _TIME_TOLERANCE_S = 1e-9
 @dataclass(frozen=True)
 class SamplerParams:
     """The adaptive sampler's options (the camera actor's luma_* parameters)."""
-    fraction: float = 0.5        # lambda: the largest per-pixel change aimed at, as a
+    fraction: float = 0.35       # lambda: the largest per-pixel change aimed at, as a
                                  # fraction of the contrast threshold
     threshold: float = 0.3       # C, log units: the emulator's contrast threshold (its
                                  # pos_thres / neg_thres; the smaller if they differ)
