@@ -23,10 +23,11 @@ Why the rate may fall by at most half per sample: MuJoCo's renders here are not
 antialiased, so a pixel an edge crosses changes in one step, not along a ramp. Over a short
 interval that no edge crossed, the largest change is a rounding step or nothing, and a rate
 read from it alone sends the next sample to the floor; the interval after that one holds
-many steps and sends the next to the ceiling, and so on (on the arm's moving belt: 74
-samples a second and a median event-time error of 4.4 ms against 1 kHz, instead of 0.45 ms).
-Halving at most per sample lets the rate come down to the floor within a few tens of ms of
-the motion stopping (six samples from the ceiling).
+many steps and sends the next to the ceiling, and so on (on the arm's moving belt, with an
+allowance for one-DN rounding: 74 samples a second and a median event-time error of 4.4 ms
+against 1 kHz; docs/dvs.md, "Adaptive sampling"). Halving at most per sample lets the
+rate come down to the floor within a few tens of ms of the motion stopping (about six
+samples from the ceiling).
 
 A caller that samples only at fixed candidate times (the sim's states, every
 1 / render_hz) asks `due(t, period)`: whether the candidate at t is the last one before the
@@ -36,8 +37,8 @@ candidates (the camera, at poses interpolated between the sim's states) asks
 Samples taken for another reason (the control ticks, which always get one) are observed
 like the others.
 
-    sampler = LumaSampler(SamplerParams(fraction=0.5, threshold=0.3, floor_hz=20,
-                                        ceiling_hz=1000))
+    sampler = LumaSampler(SamplerParams(fraction=0.35, threshold=0.3, floor_hz=20,
+                                        ceiling_hz=500))
     for t, state in states:                        # every 1 ms, say
         if control or sampler.due(t, 0.001):
             luma = render(state)
