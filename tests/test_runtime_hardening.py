@@ -631,3 +631,44 @@ def test_rings_that_do_not_fit_dev_shm_are_refused_before_any_process_starts(tmp
     finally:
         sup.stop()
     assert shm.ring_bytes(12, 640 * 480 * 3) == 4096 + 12 * 921_600
+
+
+def test_losses_are_said_at_the_end_of_a_run():
+    """An input that lost data (here: ring slots overwritten before it read them, and a
+    malformed message) gets one line at the end, naming how; a `latest` input's skips and
+    clean inputs get none."""
+    from sebvs.runtime.stalls import format_losses, losses
+    stats = {"emulator": {"inputs": {"luma": {"received": 90, "dropped_overwritten": 7,
+                                              "malformed": 1, "dropped_latest": 3}}},
+             "policy": {"inputs": {"rgb": {"received": 50, "dropped_latest": 12}}},
+             "sink": "not a dict"}
+    found = losses(stats)
+    assert found == {"emulator.luma": {"dropped_overwritten": 7, "malformed": 1}}
+    assert format_losses(found) == [
+        "input emulator.luma lost messages: 7 overwritten in the ring before it was read, "
+        "1 malformed"]
+
+
+def test_a_run_whose_input_lost_messages_says_so_when_it_stops(tmp_path):
+    """Garbage to the sink for a second: `sebvs run` ends with the loss line."""
+    import json
+    import time
+
+    from sebvs.runtime.supervisor import Supervisor
+    from sebvs.runtime.topology import load_topology
+    topo = source_sink_topology(tmp_path, "lossy")
+    text = topo.read_text().replace('run = "actors.synthetic:PatternSource"',
+                                    'run = "tests.runtime_actors:GarbageSource"')
+    topo.write_text(text)
+    said = []
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=said.append)
+    sup.start()
+    try:
+        time.sleep(1.0)
+    finally:
+        sup.stop()
+    lines = [m for m in said if "lost messages" in m]
+    assert len(lines) == 1 and lines[0].startswith("sebvs: input sink.frames lost messages: ")
+    assert "malformed" in lines[0], lines
+    info = json.loads((sup.rundir / "run.json").read_text())
+    assert info["losses"]["sink.frames"]["malformed"] > 0

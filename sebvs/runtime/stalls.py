@@ -101,3 +101,33 @@ def _why(counters: dict) -> str:
     if counters.get("malformed"):
         parts.append(f"{counters['malformed']} malformed messages")
     return f"; it counted {', '.join(parts)}" if parts else ""
+
+
+# counters of data an input lost (dropped_latest is a `latest` input's choice, not a loss)
+LOSSES = ("dropped_gap", "dropped_overwritten", "torn", "malformed", "oversize", "errors",
+          "seq_jumps")
+LOSS_WORDS = {"dropped_gap": "lost upstream (sequence gaps: a full queue)",
+              "dropped_overwritten": "overwritten in the ring before it was read",
+              "torn": "overwritten while its handler read it",
+              "malformed": "malformed", "oversize": "over its max_bytes",
+              "errors": "raised in its handler", "seq_jumps": "after a sequence leap"}
+
+
+def losses(stats: dict[str, dict]) -> dict[str, dict[str, int]]:
+    """{"actor.input": {counter: n}} of every input that lost data, from stats replies."""
+    found = {}
+    for actor, result in stats.items():
+        inputs = result.get("inputs") if isinstance(result, dict) else None
+        for inp, counters in (inputs.items() if isinstance(inputs, dict) else ()):
+            lost = {k: int(counters.get(k) or 0) for k in LOSSES
+                    if isinstance(counters, dict) and counters.get(k)}
+            if lost:
+                found[f"{actor}.{inp}"] = lost
+    return found
+
+
+def format_losses(found: dict[str, dict[str, int]]) -> list[str]:
+    """One line per input that lost data, naming how."""
+    return [f"input {name} lost messages: " + ", ".join(f"{n} {LOSS_WORDS[k]}"
+                                                        for k, n in lost.items())
+            for name, lost in sorted(found.items())]

@@ -43,7 +43,7 @@ from . import curve
 from .clocksync import measure_offset
 from .params import clip, short_repr
 from .shm import ShmFull, check_budget, remove_run_rings, ring_bytes
-from .stalls import STALL_PERIOD_S, StallWatch, query_all
+from .stalls import STALL_PERIOD_S, StallWatch, format_losses, losses, query_all
 from .topology import (Topology, TopologyError, check_cpus_available, load_topology,
                        message_sizes)
 from .worker import realtime_refused
@@ -187,6 +187,7 @@ class Supervisor:
         self.status = "new"
         self.failure: str | None = None
         self._interrupted: str | None = None
+        self.last_stats: dict[str, dict] = {}   # each actor's last stats reply
 
     # ------------------------------------------------------------------ planning
     def _endpoint(self, stem: str) -> str:
@@ -462,6 +463,24 @@ class Supervisor:
                 timespec="seconds"))
         self._write_info()
 
+    def _report_losses(self) -> None:
+        """At the end of a run, one line per input that lost data (ring overwrites, gaps,
+        malformed, ...), also in run.json ("losses"): the actors count them, but without a
+        profiler attached nobody would see a lockstep run lose a frame. The live actors'
+        last counters, else those of the last stall round (an actor that ended first)."""
+        live = {n: s["control"] for n, s in getattr(self, "specs", {}).items()
+                if self.proc_of.get(n) is not None and self.proc_of[n].popen is not None
+                and self.proc_of[n].popen.poll() is None}
+        if live:
+            replies = query_all(self.ctx, live, {"cmd": "stats", "token": self.token})
+            self.last_stats.update({n: r["result"] for n, r in replies.items()
+                                    if isinstance(r, dict) and r.get("ok")})
+        found = losses(self.last_stats)
+        for line in format_losses(found):
+            self.echo(f"sebvs: {line}")
+        if found:
+            self.info["losses"] = found
+
     def _check_stalls(self) -> None:
         """Report inputs that receive nothing while their producers send (stalls.py)."""
         if time.monotonic() < self._next_stall_check or not self.stalls.producers:
@@ -469,8 +488,10 @@ class Supervisor:
         self._next_stall_check = time.monotonic() + STALL_PERIOD_S
         replies = query_all(self.ctx, {n: s["control"] for n, s in self.specs.items()},
                             {"cmd": "stats", "token": self.token})
-        found = self.stalls.update({n: r["result"] for n, r in replies.items()
-                                    if isinstance(r, dict) and r.get("ok")})
+        stats = {n: r["result"] for n, r in replies.items()
+                 if isinstance(r, dict) and r.get("ok")}
+        self.last_stats.update(stats)
+        found = self.stalls.update(stats)
         for text in found:
             self.echo(f"sebvs: {text}")
         if found:
@@ -648,6 +669,7 @@ class Supervisor:
         if self.status == "ended":
             return 1 if self.failure else 0
         self.status = "stopping"
+        self._report_losses()
         if self.remote:
             # the other hosts' actors end, and their supervisors with them
             query_all(self.ctx, self.remote, {"cmd": "stop", "token": self.token}, 1.0)

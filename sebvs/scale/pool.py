@@ -49,6 +49,8 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
+from sebvs.runtime.stalls import format_losses
+
 POLL_S = 0.25           # how often the driver looks at its workers and calls on_poll
 STOP_WAIT_S = 10.0      # after Ctrl-C, how long workers get to stop their runs
 # passed on to every worker: what selects MuJoCo's GL backend and the runs directory
@@ -143,7 +145,8 @@ def run_task(task: Task) -> dict:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return {"label": task.label, "code": code, "failure": sup.failure,
-            "rundir": str(sup.rundir), "wall_s": time.monotonic() - t0}
+            "rundir": str(sup.rundir), "wall_s": time.monotonic() - t0,
+            "losses": sup.info.get("losses")}
 
 
 def _main_thread() -> bool:
@@ -233,6 +236,8 @@ def fan_out(shards: list[Shard], task_of: Callable[[Shard], Any],
                 shard = queue.popleft()
                 backend.submit(shard, task_of(shard))
             for shard, result in backend.finished(POLL_S):
+                for line in format_losses((result or {}).get("losses") or {}):
+                    echo(f"sebvs: {shard}: {line}")    # the worker's run said nothing
                 missing = collect(shard, result)
                 if not missing:
                     continue
