@@ -26,8 +26,8 @@ test: $(STAMP) gl
 	$(VPY) -m pytest -q
 
 bench: $(STAMP) gl
-	$(VPY) tools/bench_hops.py --quick --json out/bench_hops.json
-	$(VPY) tools/bench_hop_cpu.py --quick --json out/bench_hop_cpu.json
+	$(VPY) tools/bench/bench_hops.py --quick --json out/bench_hops.json
+	$(VPY) tools/bench/bench_hop_cpu.py --quick --json out/bench_hop_cpu.json
 
 clean:
 	rm -rf $(VENV) runs out

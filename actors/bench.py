@@ -1,5 +1,5 @@
 """Actors for the benchmarks: a paced payload source and a sink that logs hop latency
-(tools/bench_hops.py), and a tap that keeps an emulator's events (tools/bench_sim.py)."""
+(tools/bench/bench_hops.py), and a tap that keeps an emulator's events (tools/bench/bench_sim.py)."""
 from __future__ import annotations
 
 import asyncio
@@ -73,7 +73,7 @@ class LatencySink(Actor):
 class EventTap(Actor):
     """Keeps every event the emulator sends and writes them once the run ends:
     `<path>.npy` (EVENT_DTYPE, in arrival order) and `<path>.json` ({"packets": n,
-    "sensor": [w, h]}). tools/bench_sim.py compares two runs' streams with
+    "sensor": [w, h]}). tools/bench/bench_sim.py compares two runs' streams with
     sebvs.dvs.fidelity.
 
     With `action` wired (the expert's) and the sim's action taken from this tap's, it paces

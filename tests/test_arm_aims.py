@@ -1,4 +1,4 @@
-"""tools/arm_aims.py: the last pose of an arm episode classed against every led cube."""
+"""tools/studies/arm_aims.py: the last pose of an arm episode classed against every led cube."""
 import json
 
 import pytest
@@ -20,7 +20,7 @@ def _episode(pred_xy_mm, grasped=True, modality="event", mode="grasp"):
 
 
 def test_each_class_by_the_nearest_led_cube():
-    with tool_module("arm_aims") as tool:
+    with tool_module("studies/arm_aims") as tool:
         aim = lambda xy: tool.classify(_episode(xy)["metrics"], 20.0)["class"]  # noqa: E731
         assert aim((405.0, 15.0)) == "on target"        # 7 mm from the led target
         assert aim((400.0, 45.0)) == "off target"       # 35 mm downstream, still nearest it
@@ -31,7 +31,7 @@ def test_each_class_by_the_nearest_led_cube():
 
 
 def test_home_ticks_and_unrecorded_episodes_are_left_out(tmp_path):
-    with tool_module("arm_aims") as tool:
+    with tool_module("studies/arm_aims") as tool:
         home = _episode((400.0, 10.0), mode="home_workspace")
         assert tool.classify(home["metrics"], 20.0) is None
         old = _episode((400.0, 10.0))
@@ -48,7 +48,7 @@ def test_table_counts_grasps_and_the_median_miss_offset(tmp_path, capsys):
                 _episode((400.0, 12.0), modality="rgb", grasped=False)]
     path = tmp_path / "results.json"
     path.write_text(json.dumps({"task": "arm", "episodes": episodes}))
-    with tool_module("arm_aims") as tool:
+    with tool_module("studies/arm_aims") as tool:
         assert tool.main([str(path), "--json", str(tmp_path / "aims.json")]) == 0
         cells = json.loads((tmp_path / "aims.json").read_text())["cells"]
         event = cells["event/moving/multi"]

@@ -1,4 +1,4 @@
-"""tools/bench_sim.py's compute ceiling: the frames it renders are the ones the rates ask
+"""tools/bench/bench_sim.py's compute ceiling: the frames it renders are the ones the rates ask
 for, every stage is timed, and the ceiling is the CPU per simulated second inverted."""
 import sys
 
@@ -9,7 +9,7 @@ from tests.tools_loader import tool_module
 
 @pytest.mark.parametrize("dvs_hz, luma_size", [(200.0, 80), (100.0, 160)])
 def test_ceiling_renders_the_rates_frames_and_inverts_their_cpu(dvs_hz, luma_size):
-    with tool_module("bench_sim") as bench:
+    with tool_module("bench/bench_sim") as bench:
         row = bench.bench_ceiling(0.2, dvs_hz, luma_size, rgb_hz=10.0, rgb_size=160, repeats=1)
     assert row["frames_per_run"] == {"luma": round(0.2 * dvs_hz), "rgb": 2}
     stages = row["cpu_s_per_sim_s"]
@@ -24,6 +24,6 @@ def test_ceiling_renders_the_rates_frames_and_inverts_their_cpu(dvs_hz, luma_siz
 
 def test_bench_sim_help_names_the_ceiling(capsys, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["bench_sim.py", "--help"])
-    with tool_module("bench_sim") as bench, pytest.raises(SystemExit):
+    with tool_module("bench/bench_sim") as bench, pytest.raises(SystemExit):
         bench.main()
     assert "--ceiling-only" in capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""tools/bench_hop_cpu.py drives a Node's reader callback directly: check it still runs
+"""tools/bench/bench_hop_cpu.py drives a Node's reader callback directly: check it still runs
 against the runtime, reports every condition, and leaves no ring behind."""
 import asyncio
 import os
@@ -7,7 +7,7 @@ from tests.tools_loader import tool_module
 
 
 def test_measures_every_condition_and_unlinks_its_ring():
-    with tool_module("bench_hop_cpu") as tool:
+    with tool_module("bench/bench_hop_cpu") as tool:
         result = asyncio.run(tool.measure(65536, 40))
         assert set(result) == {"warm", "paced", "after_fill"}
         for cond, figures in result.items():

@@ -1,4 +1,4 @@
-"""tools/bench_policy.py's shipped-checkpoint part: every graph timed, warm and cold."""
+"""tools/bench/bench_policy.py's shipped-checkpoint part: every graph timed, warm and cold."""
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.inputs import Normalisation, channels
 from sebvs.policy.model import ERP
@@ -8,7 +8,7 @@ from tests.tools_loader import tool_module
 def test_shipped_checkpoints_are_timed_through_each_graph(tmp_path):
     save_checkpoint(ERP("arm", channels("rgb+event"), 32, stem="conv").eval(),
                     model_config("arm", "rgb+event", Normalisation(32), "conv"), tmp_path)
-    with tool_module("bench_policy") as bench:
+    with tool_module("bench/bench_policy") as bench:
         rows = bench.bench_shipped(tmp_path / "arm-rgb+event.pt", ["eager", "frozen"], 3, 0.0)
     assert [(r["graph"], r["fallback"]) for r in rows] == [("eager", None), ("frozen", None)]
     for r in rows:

@@ -1,4 +1,4 @@
-"""tools/copycat.py: the scores tell a policy that copies the previous command from one
+"""tools/studies/copycat.py: the scores tell a policy that copies the previous command from one
 that predicts the next; the command line scores a checkpoint on its own validation
 episodes and refuses another dataset's by name."""
 import json
@@ -17,7 +17,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("copycat") as module:
+    with tool_module("studies/copycat") as module:
         yield module
 
 

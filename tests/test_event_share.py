@@ -1,4 +1,4 @@
-"""tools/event_share.py: the target's share of a frame's events, on frames built by hand,
+"""tools/studies/event_share.py: the target's share of a frame's events, on frames built by hand,
 and the whole tool on a small dataset."""
 import json
 
@@ -10,7 +10,7 @@ from tests.tools_loader import tool_module
 
 
 def test_shares_count_the_box_in_the_event_frames_resolution():
-    with tool_module("event_share") as tool:
+    with tool_module("studies/event_share") as tool:
         ev = np.zeros((3, 2, 40, 40), np.uint8)
         ev[0, 0, 10:20, 10:20] = 1                 # all inside the box
         ev[1, 1, 30:40, 30:40] = 1                 # all outside
@@ -28,7 +28,7 @@ def test_shares_count_the_box_in_the_event_frames_resolution():
 
 
 def test_the_tool_groups_by_scene_setting(tmp_path, capsys):
-    with tool_module("event_share") as tool:
+    with tool_module("studies/event_share") as tool:
         idx = DatasetIndex(tmp_path / "ds", "nav")
         for variant, inside in (("indoor", 0), ("outdoor", 5)):
             path = idx.path_for(idx.next_episode_number())
@@ -59,7 +59,7 @@ def test_the_tool_groups_by_scene_setting(tmp_path, capsys):
 
 
 def test_edge_contrast_is_in_the_emulators_lin_log_units():
-    with tool_module("event_share") as tool:
+    with tool_module("studies/event_share") as tool:
         rgb = np.full((40, 40, 3), 100, np.uint8)
         rgb[10:20, 10:20] = 150                                 # the target, 1.5x as bright
         image = np.array([80.0, 80.0])                          # truth at twice the frame's size

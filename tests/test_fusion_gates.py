@@ -1,4 +1,4 @@
-"""tools/fusion_gates.py: which tokens cover the target, how much event mass a patch holds,
+"""tools/studies/fusion_gates.py: which tokens cover the target, how much event mass a patch holds,
 and a checkpoint without a gate is refused by name."""
 
 import numpy as np
@@ -13,7 +13,7 @@ from tests.tools_loader import tool_module
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("fusion_gates") as module:
+    with tool_module("studies/fusion_gates") as module:
         yield module
 
 

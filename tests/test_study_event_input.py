@@ -1,4 +1,4 @@
-"""tools/study_event_input.py: its summary pairs each variant's episodes with the reference
+"""tools/studies/study_event_input.py: its summary pairs each variant's episodes with the reference
 variant's on the same (training seed, condition, scenario, episode seed), its report shows
 the differences and the baseline rows, and its variants parse and name their outputs."""
 import argparse
@@ -11,7 +11,7 @@ from tests.tools_loader import tool_module
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("study_event_input") as module:
+    with tool_module("studies/study_event_input") as module:
         yield module
 
 

@@ -1,4 +1,4 @@
-"""tools/study_fusion.py: each RGB+Event arm pairs with RGB-only, and gated with early
+"""tools/studies/study_fusion.py: each RGB+Event arm pairs with RGB-only, and gated with early
 fusion, on the same (training seed, condition, scenario, episode seed); the report shows
 the paired differences beside the baseline rows; the arms name their sweep points."""
 import argparse
@@ -11,7 +11,7 @@ from tests.tools_loader import TOOLS, tool_module
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("study_fusion") as module:
+    with tool_module("studies/study_fusion") as module:
         yield module
 
 
@@ -67,12 +67,12 @@ def test_arms_find_their_sweep_points(tool):
     assert tool.checkpoint_dir(args, "gated", 0) == \
         Path("/s/train/gated/modality=rgb+event__seed=0")
     for arm, (modality, stem, grid) in tool.ARMS.items():
-        text = (TOOLS / "grids" / f"{grid}.toml").read_text()
+        text = (TOOLS / "studies" / "grids" / f"{grid}.toml").read_text()
         assert f'stem = "{stem}"' in text and f'"{modality}"' in text
 
 
 def test_other_training_seeds_rewrite_only_the_seed_axis(tool, tmp_path):
-    grid = TOOLS / "grids" / "nav_fusion_gated.toml"
+    grid = TOOLS / "studies" / "grids" / "nav_fusion_gated.toml"
     assert tool.grid_with_seeds(grid, None, tmp_path) == grid
     copy = tool.grid_with_seeds(grid, [2, 3, 4], tmp_path)
     assert copy.parent == tmp_path / "grids"

@@ -30,7 +30,7 @@ def _cmd_train(args) -> int:
     modalities = list(MODALITIES) if args.modality == "all" else [args.modality]
     if args.size >= 640 and args.device == "cpu":
         print(f"sebvs train: note: {args.size} px is the paper's GPU preset; on a 2-core CPU "
-              f"one batch of 32 takes ~8 s (tools/bench_policy.py). Use --device cuda, or "
+              f"one batch of 32 takes ~8 s (tools/bench/bench_policy.py). Use --device cuda, or "
               f"--size 160.", file=sys.stderr)
     try:
         train(args.data, args.out, args.task, modalities, progress=not args.no_progress,

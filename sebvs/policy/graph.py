@@ -14,7 +14,7 @@ Why: a policy in a realtime loop runs once per control tick, after 0.1 s idle, a
 cold call costs up to twice a back-to-back one (docs/runtime.md, "Realtime tail"). The
 frozen graph does the same work in fewer, larger steps: 1.86 -> 1.37 ms cold,
 0.87 -> 0.62 ms warm, for the shipped nav rgb+event checkpoint at 160 px, one thread
-(tools/bench_policy.py --shipped-only; docs/policy.md, "Benchmark").
+(tools/bench/bench_policy.py --shipped-only; docs/policy.md, "Benchmark").
 
 TorchScript is deprecated upstream in favour of torch.compile and torch.export, which
 need a C++ toolchain at start-up and seconds per model. Where the torch at hand cannot

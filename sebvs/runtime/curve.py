@@ -14,7 +14,7 @@ bytes. A libzmq built without CURVE (no libsodium) makes a tcp run fail at its f
 socket with a line that says so.
 
 SEBVS_CURVE=off in the environment of every process of a run turns it off: for measuring
-what it costs (tools/bench_hosts.py) and for a network nobody else can reach. The
+what it costs (tools/bench/bench_hosts.py) and for a network nobody else can reach. The
 supervisor says so when it starts and writes it in run.json ("curve"), which the tools
 that attach (profile, view) follow.
 """

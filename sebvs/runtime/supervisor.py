@@ -290,7 +290,7 @@ class Supervisor:
     # ------------------------------------------------------------------ lifecycle
     def _start_local(self) -> None:
         """Start this host's actors: all at once (one round trip, not one per actor: 0.36 s
-        of a worker's start-up at two workers here, tools/bench_scale.py), the clock
+        of a worker's start-up at two workers here, tools/bench/bench_scale.py), the clock
         sources (actors with run()) after everything that reads them."""
         sources = [n for n in self.specs if hasattr(self.topo.actors[n].cls, "run")]
         for group in ([n for n in self.specs if n not in sources], sources):
@@ -383,7 +383,7 @@ class Supervisor:
                     (self.rundir / "logs" / f"{m}.log").symlink_to(f"{name}.log")
         self.status = "starting"
         # when the actors were started and when each said it was ready (unix seconds:
-        # a pool's driver compares them with its own clock; tools/bench_scale.py)
+        # a pool's driver compares them with its own clock; tools/bench/bench_scale.py)
         self.info["spawned_at"] = time.time()
         self.info["ready_at"] = {}
         for p in self.procs.values():

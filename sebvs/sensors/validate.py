@@ -2,7 +2,7 @@
 
 Each function builds what it measures (a scene, a flat field, an episode), runs the real
 code path (radiance renderer, frame camera, event emulator) and returns figures;
-tools/bench_sensors.py prints them as JSON and tests/test_sensors_validate.py checks
+tools/bench/bench_sensors.py prints them as JSON and tests/test_sensors_validate.py checks
 them at small sizes.
 
   radiance_range      the radiance render's range: patches from albedo 1 to 1e-9 under a

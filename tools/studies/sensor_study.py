@@ -15,7 +15,7 @@ record  a dataset whose index holds the planned episode count is done; a shorter
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one)
-read    tools/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
+read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
         rule, into OUT/read/<task><rate>.json and .png
 
 Trainings run two at a time (--parallel, one thread each, as the recipe says);
@@ -149,7 +149,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
         metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
         read = out / "read" / f"{task}{rate}"
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
-            [sys.executable, str(ROOT / "tools" / "seed_table.py"), *runs, *READ_RULE, *metric,
+            [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs, *READ_RULE, *metric,
              "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
             read.with_suffix(".json")))
     return steps
