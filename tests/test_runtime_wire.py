@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sebvs.runtime.shm import RingReader, RingWriter, packed_offsets, remove_run_rings
+from sebvs.runtime.shm import SHM_DIR, RingReader, RingWriter, packed_offsets, remove_run_rings
 from sebvs.runtime.wire import (SCHEMA_VERSION, WireError, array_spec, decode_header,
                                 dtype_from_wire, dtype_to_wire, encode_header)
 
@@ -109,6 +109,34 @@ def test_ring_grows_into_a_new_file():
         assert w.name != first and w.slot_bytes >= 10 * 4096
     finally:
         w.close()
+
+
+def test_a_message_in_an_outgrown_ring_is_still_read_until_the_new_ring_laps_it():
+    """A ring grows into a new file while a consumer still has a message naming the old
+    one that it never mapped (a nav recording lost an event batch so: 'No such file').
+    The old file stays until the new one has gone round once, then goes."""
+    w = RingWriter("sebvs-testring-grow-race", n_slots=3)
+    r = RingReader()
+    try:
+        slot, view = w.reserve(8)
+        view[:] = b"old data"
+        gen = w.commit(slot)
+        old = w.name
+        w.commit(w.reserve(3 * 4096)[0])                 # grows: a new file
+        assert w.name != old and (SHM_DIR / old).exists()
+        assert bytes(r.view(old, slot, 0, 8, gen)) == b"old data"
+        for _ in range(2):
+            w.commit(w.reserve(16)[0])
+        assert (SHM_DIR / old).exists()                  # two of the three slots since
+        w.commit(w.reserve(16)[0])
+        assert not (SHM_DIR / old).exists()
+        w.commit(w.reserve(5 * 4096)[0])                 # and a retired file goes at close
+        second = [e[0] for e in w._retired]
+        assert second and all((SHM_DIR / n).exists() for n in second)
+    finally:
+        r.close()
+        w.close()
+    assert not any((SHM_DIR / n).exists() for n in second)
 
 
 def test_reader_refuses_foreign_names_and_out_of_bounds():

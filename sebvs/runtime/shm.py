@@ -25,6 +25,11 @@ describes exactly the file's size.
 Every page of a ring is allocated when the ring is created (posix_fallocate): a full
 /dev/shm then fails there, with ShmFull naming the sizes, never later as a SIGBUS in the
 middle of a write.
+
+A ring grows by moving to a new, larger file. The outgrown file stays until the new one
+has gone round once: messages already sent still name it, and a consumer that has not
+mapped it yet would otherwise lose them to a missing file. Once n_slots newer messages
+have been sent, an old one is lapped whichever file it names.
 """
 from __future__ import annotations
 
@@ -115,11 +120,15 @@ class RingWriter:
         self._mm = None
         self._gen = None
         self._next = 0
+        # outgrown files, each with the reserves left before it is unlinked
+        self._retired: list[list] = []
         if slot_bytes:
             self._create(slot_bytes)
 
     def _create(self, slot_bytes: int) -> None:
-        self.close(unlink=True)
+        if self.name:
+            self._retired.append([self.name, self.n_slots])
+        self.close(unlink=False)
         self.generation_count += 1
         # pid and generation say whose it is (the supervisor removes a dead producer's by
         # them); the random part makes the name impossible to create ahead of us
@@ -155,6 +164,8 @@ class RingWriter:
         if nbytes > self.slot_bytes:
             # grow with headroom so a slowly growing payload does not recreate every time
             self._create(max(nbytes, 2 * self.slot_bytes) if self.slot_bytes else nbytes)
+        elif self._retired:
+            self._unlink_lapped()
         slot = self._next
         self._next = (slot + 1) % self.n_slots
         self._gen[slot] += 2 if self._gen[slot] & 1 else 1
@@ -167,7 +178,19 @@ class RingWriter:
         self._gen[slot] = gen
         return gen
 
+    def _unlink_lapped(self) -> None:
+        """Count one reserve against every outgrown file; unlink those now lapped."""
+        for entry in self._retired:
+            entry[1] -= 1
+        for name, _ in [e for e in self._retired if e[1] <= 0]:
+            _unlink(name)
+        self._retired = [e for e in self._retired if e[1] > 0]
+
     def close(self, unlink: bool = True) -> None:
+        if unlink:
+            for name, _ in self._retired:
+                _unlink(name)
+            self._retired = []
         if self._mm is not None:
             self._gen.release()
             self._gen = None
@@ -177,10 +200,7 @@ class RingWriter:
                 pass  # a numpy view is still alive; the mapping goes when it does
             self._mm = None
         if unlink and self.name:
-            try:
-                os.unlink(SHM_DIR / self.name)
-            except FileNotFoundError:
-                pass
+            _unlink(self.name)
 
 
 class RingReader:
@@ -241,6 +261,13 @@ class RingReader:
         for entry in self._maps.values():
             _release(entry)
         self._maps.clear()
+
+
+def _unlink(name: str) -> None:
+    try:
+        os.unlink(SHM_DIR / name)
+    except FileNotFoundError:
+        pass
 
 
 def _generations(mm: mmap.mmap, n_slots: int) -> memoryview:
