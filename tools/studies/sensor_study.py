@@ -18,7 +18,10 @@ eval    an evaluation directory with results.json is done (`sebvs eval` itself r
 read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
         rule, into OUT/read/<task><rate>.json and .png
 
-Trainings run two at a time (--parallel, one thread each, as the recipe says);
+Stop it with Ctrl-C, or SIGTERM to its process group (a job started in the background by
+a script ignores SIGINT): `sebvs record` keeps every finished episode, and a step that
+fails or is stopped stops the steps after it. Trainings run two at a time (--parallel,
+one thread each, as the recipe says);
 recordings and evaluations use --workers (default 2). Output under --out (default
 out/study_sensors) and the datasets under datasets/.
 """
@@ -29,6 +32,7 @@ import json
 import shlex
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -176,7 +180,11 @@ def command_of(step: Step) -> list[str]:
     return argv
 
 
-def run_step(step: Step, log: Path) -> tuple[Step, int, float]:
+def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | None, float]:
+    """Run one step, its output to the log; (step, exit code, seconds), or a None code
+    when an earlier step failed and this one never started."""
+    if stop.is_set():
+        return step, None, 0.0
     t0 = time.monotonic()
     argv = command_of(step)
     with log.open("a") as f:
@@ -226,17 +234,21 @@ def main() -> int:
     for kind in kinds:
         todo = [s for s in steps if s.kind == kind and not is_done(s)]
         parallel = args.parallel if kind == "train" else 1
+        stop, failed = threading.Event(), False
         with ThreadPoolExecutor(parallel) as pool:
-            futures = [pool.submit(run_step, s, log) for s in todo]
+            futures = [pool.submit(run_step, s, log, stop) for s in todo]
             for future in as_completed(futures):
                 step, code, took = future.result()
+                if code is None:
+                    continue                     # never started: an earlier step failed
                 state = "done" if code == 0 and is_done(step) else f"FAILED (exit {code})"
                 print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
                 if state != "done":
-                    for other in futures:
-                        other.cancel()           # the ones not started; running ones end
-                    print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
-                    return 1
+                    stop.set()                   # nothing new starts; running ones end
+                    failed = True
+        if failed:
+            print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
+            return 1
     return 0
 
 
