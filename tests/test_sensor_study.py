@@ -2,6 +2,8 @@
 resumes where a stop left them."""
 import json
 
+import pytest
+
 from tests.tools_loader import tool_module
 
 
@@ -33,10 +35,17 @@ def test_a_recording_resumes_with_the_episodes_missing(tmp_path, monkeypatch):
         step = study.plan_steps(tmp_path, 2, {"nav10"})[0]
         assert not study.is_done(step)
         (tmp_path / "nav10").mkdir()
-        (tmp_path / "nav10" / "index.json").write_text(
-            json.dumps({"episodes": [{"file": f"e{k}"} for k in range(30)]}))
+        index = tmp_path / "nav10" / "index.json"
+
+        def holding(numbers):
+            index.write_text(json.dumps(
+                {"episodes": [{"file": f"episode_{k:04d}.h5"} for k in numbers]}))
+        holding(range(30))                       # 0..29: extended by the 90 missing
         argv = study.command_of(step)
         assert argv[argv.index("--episodes") + 1] == "90"
-        (tmp_path / "nav10" / "index.json").write_text(
-            json.dumps({"episodes": [{"file": f"e{k}"} for k in range(120)]}))
+        holding([*range(10), *range(60, 75)])    # an interrupted fan-out's gaps: refused
+        with pytest.raises(study.GappedDataset, match="25 episodes with gaps \\(first "
+                                                      "missing: 10\\).*resume at 75"):
+            study.command_of(step)
+        holding(range(120))
         assert study.is_done(step)

@@ -10,8 +10,10 @@ The commands are built from the plan's tables below (PLAN_*), which must say wha
 plan says; nothing here chooses anything. `run` skips what is already done, so a session
 that ends mid-study loses at most the step in flight:
 
-record  a dataset whose index holds the planned episode count is done; a shorter one is
-        extended (`sebvs record` resumes its numbering) by the episodes missing
+record  a dataset whose index holds the planned episode count is done; one that holds
+        episodes 0..k-1 is extended by the episodes missing (`sebvs record` resumes its
+        numbering at k); one with gaps (an interrupted fan-out leaves them) is refused:
+        resuming would number past the plan's range, so delete it and record it whole
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one)
@@ -159,11 +161,21 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
     return steps
 
 
-def recorded(index: Path) -> int:
+def episode_numbers(index: Path) -> list[int]:
+    """The episode numbers a dataset's index holds (episode_NNNN.h5), sorted."""
     try:
-        return len(json.loads(index.read_text())["episodes"])
+        entries = json.loads(index.read_text())["episodes"]
     except (OSError, ValueError, KeyError):
-        return 0
+        return []
+    return sorted(int(e["file"].split("_")[1].split(".")[0]) for e in entries)
+
+
+def recorded(index: Path) -> int:
+    return len(episode_numbers(index))
+
+
+class GappedDataset(RuntimeError):
+    """A partial recording whose numbers are not 0..k-1."""
 
 
 def is_done(step: Step) -> bool:
@@ -176,7 +188,14 @@ def command_of(step: Step) -> list[str]:
     """The step's argv, a recording shortened to the episodes still missing."""
     argv = list(step.argv)
     if step.kind == "record":
-        argv[argv.index("--episodes") + 1] = str(step.want - recorded(step.done))
+        have = episode_numbers(step.done)
+        if have != list(range(len(have))):
+            missing = sorted(set(range(max(have) + 1)) - set(have))
+            raise GappedDataset(
+                f"{step.done.parent} holds {len(have)} episodes with gaps (first missing: "
+                f"{missing[0]}): sebvs record would resume at {max(have) + 1}, past the "
+                f"plan's 0-{step.want - 1}; delete it and record it whole")
+        argv[argv.index("--episodes") + 1] = str(step.want - len(have))
     return argv
 
 
@@ -217,6 +236,13 @@ def main() -> int:
     if set(kinds) - {"record", "train", "eval", "read"}:
         ap.error("--steps: give record, train, eval, read")
     steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
+    try:
+        for step in steps:
+            if step.kind == "record" and not is_done(step):
+                command_of(step)              # a gapped dataset: refused before anything runs
+    except GappedDataset as exc:
+        print(f"sensor study: {exc}", file=sys.stderr)
+        return 2
     if args.action == "plan":
         for s in steps:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
