@@ -30,7 +30,6 @@ out/study_sensors) and the datasets under datasets/.
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import subprocess
 import sys
@@ -41,6 +40,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from sebvs.data.index import DatasetIndex  # noqa: E402
+
 PLAN_FILE = "docs/study_sensors_plan.md"
 
 # ------------------------------------------------------------------ the plan, as written
@@ -161,17 +164,8 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
     return steps
 
 
-def episode_numbers(index: Path) -> list[int]:
-    """The episode numbers a dataset's index holds (episode_NNNN.h5), sorted."""
-    try:
-        entries = json.loads(index.read_text())["episodes"]
-    except (OSError, ValueError, KeyError):
-        return []
-    return sorted(int(e["file"].split("_")[1].split(".")[0]) for e in entries)
-
-
 def recorded(index: Path) -> int:
-    return len(episode_numbers(index))
+    return len(DatasetIndex(index.parent).numbers())
 
 
 class GappedDataset(RuntimeError):
@@ -188,12 +182,13 @@ def command_of(step: Step) -> list[str]:
     """The step's argv, a recording shortened to the episodes still missing."""
     argv = list(step.argv)
     if step.kind == "record":
-        have = episode_numbers(step.done)
-        if have != list(range(len(have))):
-            missing = sorted(set(range(max(have) + 1)) - set(have))
+        index = DatasetIndex(step.done.parent)
+        have, resume = index.numbers(), index.next_episode_number()
+        if resume != len(have):              # where `sebvs record` resumes: past a gap
+            missing = min(set(range(resume)) - have)
             raise GappedDataset(
                 f"{step.done.parent} holds {len(have)} episodes with gaps (first missing: "
-                f"{missing[0]}): sebvs record would resume at {max(have) + 1}, past the "
+                f"{missing}): sebvs record would resume at {resume}, past the "
                 f"plan's 0-{step.want - 1}; delete it and record it whole")
         argv[argv.index("--episodes") + 1] = str(step.want - len(have))
     return argv
