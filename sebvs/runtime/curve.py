@@ -20,6 +20,7 @@ that attach (profile, view) follow.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass
@@ -36,8 +37,11 @@ class CurveKeys:
     client_secret: bytes
 
 
+@functools.lru_cache(maxsize=8)
 def keys_from_token(token: str) -> CurveKeys:
-    """The run's key pairs, the same in every process that holds ``token``."""
+    """The run's key pairs, the same in every process that holds ``token`` (derived once
+    per process: every tcp socket asks, the supervisor's stats rounds every 2 s among
+    them)."""
     def secret(role: str) -> bytes:
         seed = hashlib.sha256(f"sebvs-curve-{role}\0{token}".encode()).digest()
         return z85.encode(seed)

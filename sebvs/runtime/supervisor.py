@@ -463,6 +463,15 @@ class Supervisor:
                 timespec="seconds"))
         self._write_info()
 
+    def _query_stats(self, endpoints: dict[str, str]) -> dict[str, dict]:
+        """`stats` of these actors at once ({actor: result} of those that answered), also
+        kept as each one's last (`last_stats`)."""
+        replies = query_all(self.ctx, endpoints, {"cmd": "stats", "token": self.token})
+        stats = {n: r["result"] for n, r in replies.items()
+                 if isinstance(r, dict) and r.get("ok")}
+        self.last_stats.update(stats)
+        return stats
+
     def _report_losses(self) -> None:
         """At the end of a run, one line per input that lost data (ring overwrites, gaps,
         malformed, ...), also in run.json ("losses"): the actors count them, but without a
@@ -472,9 +481,7 @@ class Supervisor:
                 if self.proc_of.get(n) is not None and self.proc_of[n].popen is not None
                 and self.proc_of[n].popen.poll() is None}
         if live:
-            replies = query_all(self.ctx, live, {"cmd": "stats", "token": self.token})
-            self.last_stats.update({n: r["result"] for n, r in replies.items()
-                                    if isinstance(r, dict) and r.get("ok")})
+            self._query_stats(live)
         found = losses(self.last_stats)
         for line in format_losses(found):
             self.echo(f"sebvs: {line}")
@@ -486,12 +493,8 @@ class Supervisor:
         if time.monotonic() < self._next_stall_check or not self.stalls.producers:
             return
         self._next_stall_check = time.monotonic() + STALL_PERIOD_S
-        replies = query_all(self.ctx, {n: s["control"] for n, s in self.specs.items()},
-                            {"cmd": "stats", "token": self.token})
-        stats = {n: r["result"] for n, r in replies.items()
-                 if isinstance(r, dict) and r.get("ok")}
-        self.last_stats.update(stats)
-        found = self.stalls.update(stats)
+        found = self.stalls.update(
+            self._query_stats({n: s["control"] for n, s in self.specs.items()}))
         for text in found:
             self.echo(f"sebvs: {text}")
         if found:
