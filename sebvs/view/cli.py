@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+# what sebvs.extras.require says when rerun is missing
 MISSING_RERUN = "sebvs view needs rerun-sdk: pip install 'sebvs[view]'"
 EPISODE_SUFFIXES = (".h5", ".hdf5")
 FLUSH_TIMEOUT_S = 60.0     # the last rows into the file or the web viewer's server
@@ -71,10 +72,11 @@ def _raise_interrupt(signum, frame):
 
 
 def _cmd_view(args) -> int:
+    from sebvs.extras import MissingExtra, require
     try:
-        import rerun as rr
-    except ImportError:
-        print(MISSING_RERUN, file=sys.stderr)
+        rr = require("rerun", "rerun-sdk", "view", "sebvs view")
+    except MissingExtra as exc:
+        print(exc, file=sys.stderr)           # MISSING_RERUN
         return 2
     from sebvs.runtime.runs import RunInfoError
     from .replay import NotAnEpisode
