@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sebvs.dvs.h5io import read_events
+from sebvs.dvs.eventfile import read_events
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,5 @@
-"""Event files in HDF5, laid out like public event datasets (DSEC-style):
+"""Writing event files in HDF5, laid out like public event datasets (read back, with the
+other formats, by sebvs/dvs/eventfile.py):
 
     events/x  uint16   events/y  uint16   events/t  int64, microseconds   events/p  int8 (+1/-1)
     ms_to_idx uint64   [i] = index of the first event with t >= i milliseconds
@@ -67,19 +68,3 @@ class EventFileWriter:
 
     def __exit__(self, *exc):
         self.close()
-
-
-def read_events(path: str | Path, t0_ms: float | None = None, t1_ms: float | None = None):
-    """(events, attrs) of [t0_ms, t1_ms), milliseconds from the file's first event (as
-    ms_to_idx counts them); the returned timestamps are absolute, in ns."""
-    with h5py.File(path, "r") as f:
-        idx = f["ms_to_idx"][:]
-        lo = int(idx[min(int(t0_ms), len(idx) - 1)]) if t0_ms is not None and len(idx) else 0
-        hi = int(idx[min(int(t1_ms), len(idx) - 1)]) if t1_ms is not None and len(idx) \
-            else f["events/t"].shape[0]
-        ev = np.zeros(max(0, hi - lo), EVENT_DTYPE)
-        for name in ("x", "y", "p"):
-            ev[name] = f["events"][name][lo:hi]
-        ev["t"] = f["events/t"][lo:hi] * 1000 + int(f.attrs.get("t_offset_us", 0)) * 1000
-        attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
-    return ev, attrs
