@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from sebvs.dvs.emulator import EVENT_DTYPE
+from sebvs.dvs.fidelity import nearest_time_errors
+
 
 def polarity_index(p: np.ndarray) -> np.ndarray:
     """0 for ON (p > 0), 1 for OFF: the channel order of the accumulator's frames."""
@@ -46,46 +49,24 @@ def relative_l1(test: np.ndarray, ref: np.ndarray) -> float:
 
 
 def timestamp_errors(test: tuple, ref: tuple, shape: tuple[int, int]) -> tuple[np.ndarray, int]:
-    """Nearest-event matching per pixel and polarity.
+    """Nearest-event matching per pixel and polarity (sebvs/dvs/fidelity.py's, the one
+    matcher of the project).
 
     test, ref: (t ns, x, y, p) arrays. -> (abs errors ns (n_matched,) int64, n_unmatched):
     a test event is unmatched when the reference has no event at its pixel and polarity.
-    Vectorised: events are keyed (pixel, polarity) and sorted by (key, t); a binary search
-    of each test event in the reference's order finds its neighbours in time.
     """
-    h, w = shape
+    err = nearest_time_errors(_as_events(test), _as_events(ref), shape)
+    has = np.isfinite(err)
+    return err[has].astype(np.int64), int((~has).sum())
 
-    def keyed(ev):
-        t, x, y, p = (np.asarray(a) for a in ev)
-        key = (np.asarray(y, np.int64) * w + np.asarray(x, np.int64)) * 2 + polarity_index(p)
-        return key, np.asarray(t, np.int64)
 
-    kt, tt = keyed(test)
-    kr, tr = keyed(ref)
-    if len(kt) == 0:
-        return np.zeros(0, np.int64), 0
-    if len(kr) == 0:
-        return np.zeros(0, np.int64), len(kt)
-    # One sortable int64 per event: key * span + (t - tmin). Keys are pixel/polarity
-    # blocks, so a search in this order finds a test event's time neighbours within its
-    # own block; lo/hi bound the block (no neighbour is taken from another pixel).
-    tmin = int(min(tt.min(), tr.min()))
-    span = int(max(tt.max(), tr.max())) - tmin + 1
-    if (int(max(kt.max(), kr.max())) + 1) * span >= 2 ** 62:
-        raise ValueError("timestamp_errors: time span x pixels too large for int64 keys")
-    cr = np.sort(kr * span + (tr - tmin))
-    ct = kt * span + (tt - tmin)
-    lo = np.searchsorted(cr, kt * span, side="left")          # first event of the block
-    hi = np.searchsorted(cr, (kt + 1) * span, side="left")    # one past its last
-    has = hi > lo
-    idx = np.searchsorted(cr, ct, side="left")
-    # A test event whose block sorts after every reference event has lo == hi == len(cr);
-    # such events are unmatched, and their indices are only kept in range to be masked.
-    last = np.minimum(np.maximum(hi - 1, lo), len(cr) - 1)
-    right = np.clip(idx, lo, last)
-    left = np.clip(idx - 1, lo, last)
-    err = np.minimum(np.abs(cr[right] - ct), np.abs(cr[left] - ct))
-    return err[has], int((~has).sum())
+def _as_events(ev: tuple) -> np.ndarray:
+    """(t, x, y, p) arrays -> EVENT_DTYPE, polarity +1 (p > 0) or -1 (p <= 0)."""
+    t, x, y, p = (np.asarray(a) for a in ev)
+    out = np.empty(len(t), EVENT_DTYPE)
+    out["t"], out["x"], out["y"] = t, x, y
+    out["p"] = np.where(p > 0, 1, -1)
+    return out
 
 
 def event_errors(test: tuple, ref: tuple, shape: tuple[int, int], t0_ns: int,
