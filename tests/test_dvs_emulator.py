@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from sebvs.dvs.accumulator import EventAccumulator, EventGeometry
-from sebvs.dvs.emulator import EVENT_DTYPE, EventEmulator, linlog
+from sebvs.dvs.emulator import (EVENT_DTYPE, EventEmulator, linlog, pixel_time_order,
+                                time_order)
 from sebvs.dvs.params import MAX_LEAK_EVENTS, EmulatorParams, preset
 
 CLEAN = dict(downsample=1.0, blur=False)
@@ -170,6 +171,54 @@ def test_refractory_period_drops_close_events():
     assert a.size == 16 * 8 and b.size == 16  # only the first of each pixel survives
     c = few.step(flat(20), 2_500_000)         # the next burst starts 2.5 ms later: allowed
     assert (np.bincount(c["y"].astype(int) * 4 + c["x"], minlength=16) >= 1).all()
+
+
+def test_sort_orders_equal_numpys_stable_orders():
+    """The packed-key sorts give numpy's stable permutations exactly, ties included, on
+    the packed path and on the fallback a huge time span forces."""
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 2, 17, 5000):
+        for hi in (3, 10**6, 2**62):            # many ties; few; a span past the key limit
+            t = rng.integers(0, hi, n, dtype=np.int64)
+            if n and hi == 2**62:
+                t[0] = 2**63 - 1
+            pix = rng.integers(0, 50, n).astype(np.int64)
+            assert np.array_equal(time_order(t), np.argsort(t, kind="stable"))
+            assert np.array_equal(pixel_time_order(pix, t), np.lexsort((t, pix)))
+
+
+def reference_refractory(events, last_t, period_ns, width):
+    """The refractory rule event by event: per pixel in time order (ties in input order),
+    keep an event when it comes at least one period after the pixel's last kept one."""
+    last = last_t.copy().ravel()
+    keep = np.zeros(events.size, bool)
+    order = sorted(range(events.size), key=lambda i: (int(events["y"][i]) * width
+                                                      + int(events["x"][i]), int(events["t"][i]), i))
+    for i in order:
+        pix = int(events["y"][i]) * width + int(events["x"][i])
+        if int(events["t"][i]) - period_ns >= last[pix]:
+            keep[i] = True
+            last[pix] = events["t"][i]
+    return events[keep], last.reshape(last_t.shape)
+
+
+def test_refractory_walk_matches_the_rule_event_by_event():
+    rng = np.random.default_rng(11)
+    period = 0.0005
+    for trial in range(30):
+        emu = emulator(refractory_period_s=period)
+        emu.step(flat(20, (6, 5)), 0)
+        emu.last_t[:] = rng.choice([np.iinfo(np.int64).min // 2, 0, 400_000], size=(6, 5))
+        n = int(rng.integers(1, 400))
+        ev = np.zeros(n, EVENT_DTYPE)
+        ev["x"], ev["y"] = rng.integers(0, 5, n), rng.integers(0, 6, n)
+        # bursts of up to tens of events per pixel, with equal times now and then
+        ev["t"] = 1_000_000 + rng.integers(0, 2_000_000, n) // rng.choice([1, 1000], n)
+        ev["p"] = rng.choice([1, -1], n)
+        want, want_last = reference_refractory(ev, emu.last_t, int(period * 1e9), 5)
+        got = emu._refractory(ev)
+        assert np.array_equal(got, want), trial
+        assert np.array_equal(emu.last_t, want_last), trial
 
 
 def test_params_validation():

@@ -87,6 +87,48 @@ def empty_events(n: int = 0) -> np.ndarray:
     return np.zeros(n, EVENT_DTYPE)
 
 
+_KEY_LIMIT = 2 ** 62   # packed sort keys stay below this, far from int64's edge
+
+
+def time_order(t: np.ndarray) -> np.ndarray:
+    """The permutation ``np.argsort(t, kind="stable")`` gives, for int64 times.
+
+    Packs (t - min, index) into one unique int64 key and sorts it unstably: equal keys
+    cannot occur, so the result is the stable order, in a sixth of the time (numpy's
+    stable sort of int64 is a merge sort). Falls back to the stable sort where the key
+    would not fit.
+    """
+    n = t.size
+    if n < 2:
+        return np.arange(n)
+    lo = int(t.min())
+    if (int(t.max()) - lo + 1) * n >= _KEY_LIMIT:
+        return np.argsort(t, kind="stable")
+    key = (t - lo) * n
+    key += np.arange(n)
+    key.sort()
+    return key % n
+
+
+def pixel_time_order(pixel: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The permutation ``np.lexsort((t, pixel))`` gives (by pixel, then time, ties in
+    input order), for non-negative int64 pixel indices and times.
+
+    One packed key pixel * span + (t - min) sorted stably: the events arrive nearly in
+    pixel order, which the merge sort exploits, where lexsort pays for two full passes.
+    """
+    n = t.size
+    if n < 2:
+        return np.arange(n)
+    lo = int(t.min())
+    span = int(t.max()) - lo + 1
+    if (int(pixel.max()) + 1) * span >= _KEY_LIMIT:
+        return np.lexsort((t, pixel))
+    key = pixel * span
+    key += t - lo
+    return np.argsort(key, kind="stable")
+
+
 def _offsets(x: np.ndarray, hi: int) -> np.ndarray:
     """Non-negative float ns offsets -> int64 (truncated), at most ``hi``.
 
@@ -265,8 +307,7 @@ class EventEmulator:
             events = np.concatenate([events, self._shot_noise(luma, self.t_ns, dt_ns)])
         if p.refractory_period_s > 0 and events.size:
             events = self._refractory(events)
-        order = np.argsort(events["t"], kind="stable")
-        events = events[order]
+        events = events[time_order(events["t"])]
         self.lp, self.base, self.t_ns = lp, base, t_ns
         if p.lowpass_hold == "linear":
             self.l_in = target       # not reused in place on this path
@@ -384,18 +425,26 @@ class EventEmulator:
         period = int(min(self.params.refractory_period_s * 1e9, 2.0 ** 62))
         w = self.shape[1]
         pix = events["y"].astype(np.int64) * w + events["x"]
-        order = np.lexsort((events["t"], pix))
+        order = pixel_time_order(pix, events["t"])
         pix_s, t_s = pix[order], events["t"][order]
         keep = np.zeros(order.size, bool)
-        # per pixel, walk its (few) events in time order: vectorised across pixels by rank
+        # per pixel, walk its events in time order, vectorised across pixels by rank;
+        # after rank 0 only the (few) pixels with more events stay in the walk
         start = np.r_[0, np.flatnonzero(np.diff(pix_s)) + 1]
         counts = np.diff(np.r_[start, pix_s.size])
-        last = self.last_t.ravel()[pix_s[start]].copy()
-        for r in range(int(counts.max())):
-            sel = counts > r
-            pos = start[sel] + r
-            ok = t_s[pos] - period >= last[sel]   # last + period could pass 2**63 - 1
+        first = pix_s[start]
+        last = self.last_t.ravel()[first]
+        ok = t_s[start] - period >= last      # last + period could pass 2**63 - 1
+        keep[start[ok]] = True
+        last[ok] = t_s[start[ok]]
+        live = np.flatnonzero(counts > 1)
+        pos, left, live_last = start[live] + 1, counts[live] - 1, last[live]
+        while live.size:
+            ok = t_s[pos] - period >= live_last
             keep[pos[ok]] = True
-            last[np.flatnonzero(sel)[ok]] = t_s[pos[ok]]
-        self.last_t.ravel()[pix_s[start]] = last
+            live_last[ok] = t_s[pos[ok]]
+            last[live] = live_last
+            more = left > 1
+            live, pos, left, live_last = live[more], pos[more] + 1, left[more] - 1, live_last[more]
+        self.last_t.ravel()[first] = last
         return events[np.sort(order[keep])]
