@@ -104,7 +104,7 @@ def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
         joined = json.loads(out.read_text())["cells"]["fast/multi"]
         assert joined == tool.seed_table(runs, "rgb+event", "rgb")["cells"]["fast/multi"]
         parts = [("x", runs["s0"]), ("y", only(runs["s0"], "rgb"))]
-        with pytest.raises(ValueError, match="x and y both hold 'rgb' episodes"):
+        with pytest.raises(ValueError, match="x and y both hold 'rgb' episodes of fast/multi"):
             tool.merge_runs(parts)
         with pytest.raises(ValueError, match="y differs from x in seed"):
             tool.merge_runs([("x", only(runs["s0"], "rgb")),

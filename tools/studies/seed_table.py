@@ -8,7 +8,7 @@ of the modality, or because of one training run?
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
 one seed; a NAME given again joins another directory to that run (where its modalities
-were evaluated apart, each modality in one of them). NAME@TAG=DIR renames that directory's
+or its cells were evaluated apart; each cell of a modality in one of them). NAME@TAG=DIR renames that directory's
 modalities to MODALITY@TAG, so that one modality under two settings can be compared (a
 sensor, a recipe: --a event@fr --b event). All must have played the same task and
 topology seed (the same episodes).
@@ -56,8 +56,10 @@ def tagged(results: dict, tag: str) -> dict:
 
 def merge_runs(parts: list[tuple[str, dict]]) -> dict:
     """One training seed's evaluations, made into separate directories ((label, results)
-    each), as one results dict. Refused: parts of other episodes (task or topology seed),
-    or a modality held by two parts (which would be the run's?)."""
+    each), as one results dict: a modality evaluated apart (a control added later), or
+    cells evaluated apart (conditions run in two groups). Refused: parts of other
+    episodes (task or topology seed), or a cell of one modality held by two parts (which
+    would be the run's?)."""
     (first_label, first), held = parts[0], {}
     for label, res in parts:
         for key in ("task", "seed"):
@@ -65,11 +67,13 @@ def merge_runs(parts: list[tuple[str, dict]]) -> dict:
                 raise ValueError(f"{label} differs from {first_label} in {key} "
                                  f"({res.get(key)!r} vs {first.get(key)!r}): not the same "
                                  f"episodes")
-        for m in sorted({e["modality"] for e in res["episodes"]}):
-            if m in held:
-                raise ValueError(f"{held[m]} and {label} both hold {m!r} episodes: give "
-                                 f"each modality from one directory")
-            held[m] = label
+        for cell in sorted({(e["modality"], e["condition"], e["scenario"])
+                            for e in res["episodes"]}):
+            if cell in held:
+                m, cond, scen = cell
+                raise ValueError(f"{held[cell]} and {label} both hold {m!r} episodes of "
+                                 f"{cond}/{scen}: give each cell from one directory")
+            held[cell] = label
     return {**first, "episodes": [e for _, res in parts for e in res["episodes"]]}
 
 
