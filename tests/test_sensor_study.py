@@ -49,3 +49,60 @@ def test_a_recording_resumes_with_the_episodes_missing(tmp_path, monkeypatch):
             study.command_of(step)
         holding(range(120))
         assert study.is_done(step)
+
+
+def _episode(modality, condition, scenario, k, value):
+    return {"modality": modality, "condition": condition, "scenario": scenario, "seed": k,
+            "metrics": {"strict_success": value}}
+
+
+def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
+    """Three seeds where events lead by 30 points in hdr indoors, tie in nominal light, and
+    have no scored episode under flicker: helps (predicted: held), no clear difference
+    (held), no reading; the 30 Hz column and the arm are not yet run."""
+    with tool_module("studies/sensor_study") as study, \
+            tool_module("studies/seed_table") as seeds, \
+            tool_module("studies/sensor_report") as rep:
+        runs = {}
+        for seed in (0, 1, 2):
+            main, flicker = [], []
+            for k in range(10):
+                main += [_episode("rgb+event", "hdr", "indoor", k, 0.8),
+                         _episode("rgb+diff", "hdr", "indoor", k, 0.5),
+                         _episode("rgb+event", "nominal_physical", "indoor", k, 0.6),
+                         _episode("rgb+diff", "nominal_physical", "indoor", k, 0.6)]
+                flicker += [_episode("rgb+event", "flicker_100", "indoor", k, None),
+                            _episode("rgb+diff", "flicker_100", "indoor", k, 0.4)]
+                if seed == 0:
+                    main += [_episode("expert", "hdr", "indoor", k, 1.0),
+                             _episode("no_action", "hdr", "indoor", k, 0.1 * (k % 2))]
+            for group, episodes in (("main", main), ("flicker", flicker)):
+                d = study.eval_dir(tmp_path, "nav", 10, seed, group)
+                d.mkdir(parents=True)
+                (d / "results.json").write_text(json.dumps(
+                    {"task": "nav", "seed": 100100, "episodes": episodes}))
+            runs[f"seed{seed}"] = seeds.merge_runs(
+                [(g, json.loads((study.eval_dir(tmp_path, "nav", 10, seed, g)
+                                 / "results.json").read_text())) for g in ("main", "flicker")])
+        table = seeds.seed_table(runs, "rgb+event", "rgb+diff", "strict_success", 10.0, 3)
+        (tmp_path / "read").mkdir()
+        (tmp_path / "read" / "nav10.json").write_text(json.dumps(table))
+
+        text, data, done = rep.report(tmp_path)
+        assert not done
+        lines = {}                         # the headline table's rows: the first of each cell
+        for line in text.splitlines():
+            if line.startswith("| "):
+                lines.setdefault(line.split(" | ")[0].lstrip("| "), line)
+        hdr = lines["hdr/indoor"]
+        assert "+30.0 [+30.0, +30.0], 3/0, **helps**" in hdr and "| held / - |" in hdr
+        assert "not yet run" in hdr                       # the 30 Hz column
+        assert "**no clear difference**" in lines["nominal_physical/indoor"]
+        assert "no reading" in lines["flicker_100/indoor"]
+        assert "not yet run" in lines["dusk/outdoor"]
+        means = data["tasks"]["nav"]["rows"][10]
+        assert means["rgb+event"]["hdr/indoor"] == pytest.approx(0.8)
+        assert means["no_action"]["hdr/indoor"] == pytest.approx(0.05)
+        assert "rgb+event" not in means or "flicker_100/indoor" not in means["rgb+event"]
+        assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md")]) == 3
+        assert (tmp_path / "r.md").read_text() == text

@@ -18,7 +18,8 @@ train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one)
 read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
-        rule, into OUT/read/<task><rate>.json and .png
+        rule, into OUT/read/<task><rate>.json and .png (nav joins each seed's two
+        evaluation groups); tools/studies/sensor_report.py then builds the report's tables
 
 Stop it with Ctrl-C, or SIGTERM to its process group (a job started in the background by
 a script ignores SIGINT): `sebvs record` keeps every finished episode, and a step that
