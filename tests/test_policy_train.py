@@ -70,6 +70,54 @@ def test_frames_in_memory_and_loader_workers_train_the_same_weights(gain_data, t
     assert any(line.startswith("  frames in memory: ") for line in said), said
 
 
+class StopHere(Exception):
+    """Stands for a killed training: raised from the log line of an epoch."""
+
+
+def test_a_stopped_training_resumes_to_the_same_weights(gain_data, tmp_path):
+    """Stopped in its third epoch, a training goes on after epoch 2 from its state file and
+    ends bit for bit where one that never stopped ends: weights, losses and schedule."""
+    kw = dict(epochs=4, batch=8, max_frames=48, seed=2, patience=10, progress=False,
+              norm=Normalisation(size=32),
+              plateau={"factor": 0.5, "patience": 0, "threshold": 1.0, "threshold_mode": "abs"})
+    train(gain_data, tmp_path / "whole", "nav", ["rgb+event"], log=lambda s: None, **kw)
+
+    def stop_in_epoch_3(line):
+        if line.startswith("  epoch 3:"):
+            raise StopHere
+    with pytest.raises(StopHere):
+        train(gain_data, tmp_path / "cut", "nav", ["rgb+event"], log=stop_in_epoch_3, **kw)
+    state = tmp_path / "cut" / "nav-rgb+event.resume.pt"
+    assert state.exists() and not (tmp_path / "cut" / "nav-rgb+event.pt").exists()
+    said = []
+    train(gain_data, tmp_path / "cut", "nav", ["rgb+event"], log=said.append, **kw)
+    assert "  resuming after epoch 2 (nav-rgb+event.resume.pt)" in said
+    assert not any(line.startswith(("  epoch 1:", "  epoch 2:")) for line in said)
+    a, b = (torch.load(tmp_path / d / "nav-rgb+event.pt", weights_only=True)
+            for d in ("whole", "cut"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    rows = [(tmp_path / d / "nav-rgb+event-losses.csv").read_text() for d in ("whole", "cut")]
+    assert rows[0] == rows[1] and ",5e-05" in rows[0]     # the schedule halved the lr twice
+    cfg = json.loads((tmp_path / "cut" / "nav-rgb+event.json").read_text())
+    assert cfg["training"]["resumed_after_epochs"] == [2] and not state.exists()
+
+    # a state made by other settings is not continued
+    with pytest.raises(StopHere):
+        train(gain_data, tmp_path / "other", "nav", ["rgb+event"], log=stop_in_epoch_3, **kw)
+    said = []
+    train(gain_data, tmp_path / "other", "nav", ["rgb+event"], log=said.append,
+          **dict(kw, lr=1e-3, epochs=1))
+    assert "  nav-rgb+event.resume.pt: made by other settings or data; training from the " \
+           "start" in said
+    assert any(line.startswith("  epoch 1:") for line in said)
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "nav-rgb+event.resume.pt").write_bytes(b"not a torch file")
+    said = []
+    train(gain_data, tmp_path / "bad", "nav", ["rgb+event"], log=said.append,
+          **dict(kw, epochs=1))
+    assert any("nav-rgb+event.resume.pt: unreadable" in line for line in said), said
+
+
 def test_preload_holds_the_files_values_and_auto_declines_what_does_not_fit(
         gain_data, tmp_path, monkeypatch):
     from sebvs.policy import train as train_module

@@ -85,7 +85,9 @@ def register(subparsers) -> None:
         description="Train the ERP transformer on recorded episodes with the paper's settings "
                     "(nav: Adam 2e-4, wd 1e-4, MSE, early stopping 2; arm: Adam 1e-4, "
                     "ReduceLROnPlateau, Smooth L1). Writes <out>/<task>-<modality>.pt and "
-                    ".json, loss CSVs and <out>/<task>-losses.png.")
+                    ".json, loss CSVs and <out>/<task>-losses.png. A stopped training "
+                    "goes on after its last finished epoch when the same command runs again "
+                    "(<out>/<task>-<modality>.resume.pt), to the same weights.")
     t.add_argument("--task", required=True, choices=["nav", "arm"])
     t.add_argument("--modality", required=True,
                    choices=["rgb", "event", "rgb+event", "all", "rgb+diff"],

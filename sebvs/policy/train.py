@@ -25,6 +25,7 @@ from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, availab
                       dataset_hash, event_frames_of, load_index, split_episodes)
 from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
                      check_modality)
+from .resume import fingerprint, load_state, resume_path, save_state
 
 
 @dataclass
@@ -204,8 +205,25 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
             f"{len(val_set)} validation frames ({len(val_eps)} episodes), size {s.norm.size}")
 
         rows, best, best_state, bad = [], math.inf, None, 0
+        data_hash = dataset_hash(data, episodes)
+        state_file = resume_path(out, s.task, modality)
+        key = fingerprint(s, modality, data_hash)
+        first, seconds_before, resumed = 1, 0.0, []
+        state = load_state(state_file, key, log)
+        if state is not None:
+            model.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            if scheduler is not None:
+                scheduler.load_state_dict(state["scheduler"])
+            gen.set_state(state["generator"])
+            torch.set_rng_state(state["torch_rng"])
+            rows, best, best_state, bad = (state["rows"], state["best"], state["best_state"],
+                                           state["bad"])
+            first = state["epoch"] + 1 if bad < s.patience else s.epochs + 1
+            seconds_before, resumed = state["seconds"], [*state["resumed"], state["epoch"]]
+            log(f"  resuming after epoch {state['epoch']} ({state_file.name})")
         t0 = time.monotonic()
-        for epoch in range(1, s.epochs + 1):
+        for epoch in range(first, s.epochs + 1):
             tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
             lr = optimizer.param_groups[0]["lr"]
             tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress,
@@ -222,6 +240,13 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                 bad += 1
             if scheduler is not None:
                 scheduler.step(va)
+            save_state(state_file, {
+                "fingerprint": key, "epoch": epoch, "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict() if scheduler is not None else None,
+                "generator": gen.get_state(), "torch_rng": torch.get_rng_state(),
+                "rows": rows, "best": best, "best_state": best_state, "bad": bad,
+                "seconds": seconds_before + time.monotonic() - t0, "resumed": resumed})
             if bad >= s.patience:
                 log(f"  early stop: no better validation loss for {bad} epochs")
                 break
@@ -238,7 +263,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
               "parameters": count_parameters(model),
               **({"target_stats": target_stats} if target_stats else {}),
               **({"event_frames": event_frames} if event_frames else {}),
-              "dataset": {"path": str(data), "hash": dataset_hash(data, episodes),
+              "dataset": {"path": str(data), "hash": data_hash,
                           "train_episodes": [e["file"] for e in train_eps],
                           "val_episodes": [e["file"] for e in val_eps],
                           "train_frames": len(train_set), "val_frames": len(val_set)},
@@ -247,10 +272,12 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                            "epochs_run": len(rows),
                            "patience": s.patience, "plateau": s.plateau,
                            "best_val_loss": best, "seed": s.seed, "max_frames": s.max_frames,
-                           "seconds": round(time.monotonic() - t0, 2)},
+                           "seconds": round(seconds_before + time.monotonic() - t0, 2),
+                           **({"resumed_after_epochs": resumed} if resumed else {})},
               "torch": torch.__version__, "numpy": np.__version__}
     save_checkpoint(model, config, out)
     write_losses_csv(rows, out / f"{s.task}-{modality}-losses.csv")
+    state_file.unlink(missing_ok=True)
     return config
 
 

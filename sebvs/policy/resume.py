@@ -1,0 +1,60 @@
+"""A training's state at the end of each epoch, so that a stopped training goes on from
+there and ends with the same weights, bit for bit, as one that never stopped.
+
+The state file ``<out>/<task>-<modality>.resume.pt`` holds the model, the optimizer, the
+learning-rate schedule, the shuffle's and torch's random generators, the loss rows and the
+early-stopping bookkeeping (the best weights so far and the epochs since). It is written
+atomically after every epoch, read only when it was made by the same settings on the same
+data (its fingerprint), and removed once the checkpoint is written. It holds tensors and
+plain values only, read with ``torch.load(..., weights_only=True)``.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+RESUME_VERSION = 1
+# settings that change how long the epochs take but not the weights (tested: the loader
+# workers and the frames cache leave every weight bit for bit the same)
+NOT_IN_FINGERPRINT = ("num_workers", "cache")
+
+
+def resume_path(out: str | Path, task: str, modality: str) -> Path:
+    return Path(out) / f"{task}-{modality}.resume.pt"
+
+
+def fingerprint(settings, modality: str, data_hash: str) -> str:
+    """What must match for a saved state to continue this training."""
+    fields = {k: v for k, v in asdict(settings).items() if k not in NOT_IN_FINGERPRINT}
+    return json.dumps({"version": RESUME_VERSION, "modality": modality, "data": data_hash,
+                       "settings": fields}, sort_keys=True, default=str)
+
+
+def save_state(path: Path, state: dict) -> None:
+    """Write ``state`` so that a reader sees the previous epoch's file or this one, never
+    half of one (a stop during the write leaves the old file)."""
+    import torch
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_state(path: Path, expected: str, log=print) -> dict | None:
+    """The saved state when it continues this training, else None (with one line saying
+    why it is not used, when a file is there)."""
+    import torch
+    if not path.exists():
+        return None
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as exc:     # truncated, not a torch file, or holding other objects
+        log(f"  {path.name}: unreadable ({str(exc).splitlines()[0][:120]}); training from "
+            f"the start")
+        return None
+    if not isinstance(state, dict) or state.get("fingerprint") != expected:
+        log(f"  {path.name}: made by other settings or data; training from the start")
+        return None
+    return state
