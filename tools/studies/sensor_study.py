@@ -5,6 +5,7 @@ training, evaluation and reading of the plan, in its order, resumable.
     tools/studies/sensor_study.py plan                 # every command, nothing run
     tools/studies/sensor_study.py run [--steps record,train,eval,read] [--only nav10,arm30]
     tools/studies/sensor_study.py status               # what is done, what is left
+    tools/studies/sensor_study.py smoke --only nav30   # every command shrunk to minutes
 
 The commands are built from the plan's tables below (PLAN_*), which must say what the
 plan says; nothing here chooses anything. `run` skips what is already done, so a session
@@ -165,6 +166,48 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
     return steps
 
 
+SMOKE_SEEDS = (0, 1)     # two training seeds: the fewest a seed table reads
+
+
+def _set_arg(argv: list[str], flag: str, value: str) -> None:
+    argv[argv.index(flag) + 1] = value
+
+
+def smoke_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
+    """The plan's training, evaluation and reading commands, shrunk so that all of them
+    run end to end in minutes, into ``out``: one epoch on 64 frames, training seeds 0 and
+    1 only, one episode per cell on the dev seed 1000 (never a test seed), 2 s nav
+    episodes, the rule over two seeds. It checks that the commands and their hand-offs
+    work (checkpoints found, evaluation groups joined, the rate's options accepted)
+    before hours go into them; its numbers mean nothing. The datasets are the study's,
+    read only."""
+    steps = []
+    for step in plan_steps(out, workers, cells):
+        argv = list(step.argv)
+        if step.kind == "record":
+            continue
+        if step.kind == "train":
+            if int(argv[argv.index("--seed") + 1]) not in SMOKE_SEEDS:
+                continue
+            _set_arg(argv, "--epochs", "1")
+            argv += ["--max-frames", "64"]
+        elif step.kind == "eval":
+            if int(step.done.parent.parent.name.removeprefix("seed")) not in SMOKE_SEEDS:
+                continue
+            split = argv.index("--split")
+            del argv[split:split + 2]
+            _set_arg(argv, "--seed", "1000")
+            _set_arg(argv, "--episodes", "1")
+            if "--task" in argv and argv[argv.index("--task") + 1] == "nav":
+                argv += ["--set", "sim.episode_s=2"]
+        elif step.kind == "read":
+            argv = [a for a in argv if not a.startswith(tuple(
+                f"seed{s}=" for s in range(3) if s not in SMOKE_SEEDS))]
+            _set_arg(argv, "--min-ahead", str(len(SMOKE_SEEDS)))
+        steps.append(Step(step.kind, f"smoke: {step.label}", tuple(argv), step.done, step.want))
+    return steps
+
+
 def recorded(index: Path) -> int:
     return len(DatasetIndex(index.parent).numbers())
 
@@ -214,7 +257,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n\n".join(__doc__.split("\n\n")[1:]))
-    ap.add_argument("action", choices=["plan", "run", "status"])
+    ap.add_argument("action", choices=["plan", "run", "status", "smoke"],
+                    help="smoke: the plan's commands shrunk to minutes (one epoch, one "
+                         "episode per cell on a dev seed) into OUT/smoke, to check they "
+                         "work end to end before the real run; its numbers mean nothing")
     ap.add_argument("--steps", default="record,train,eval,read",
                     help="which kinds of step, comma-separated (default all, in order)")
     ap.add_argument("--only", default=None, metavar="CELLS",
@@ -231,7 +277,11 @@ def main() -> int:
                  f"{', '.join(sorted(known))})")
     if set(kinds) - {"record", "train", "eval", "read"}:
         ap.error("--steps: give record, train, eval, read")
-    steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
+    if args.action == "smoke":
+        args.out = args.out / "smoke"
+        steps = [s for s in smoke_steps(args.out, args.workers, cells) if s.kind in kinds]
+    else:
+        steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
     try:
         for step in steps:
             if step.kind == "record" and not is_done(step):
