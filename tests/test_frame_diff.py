@@ -1,6 +1,7 @@
 """The rgb+diff control: an RGB frame and its change since the previous control tick's,
 made the same way in training (dataset) and in closed loop (the policy actor)."""
 import asyncio
+import json
 import math
 
 import numpy as np
@@ -169,3 +170,14 @@ def test_eval_runs_the_control_without_the_event_chain(tmp_path):
     _, sets = plan.overrides(Run("nominal", "single", "rgb+diff"))
     assert 'policy.inputs={rgb="camera/rgb"}' in sets
     assert Run("nominal", "single", "rgb+diff").key == "nominal__rgb_diff"
+
+
+def test_eval_notes_an_unknown_event_sensor_only_for_modalities_with_events(tmp_path):
+    """A checkpoint config without "event_frames" gets a note when its policy reads events
+    (its sensor is then the topology's), never for the control, which reads none."""
+    for m in ("rgb+diff", "rgb+event"):
+        (tmp_path / f"nav-{m}.json").write_text(json.dumps({"task": "nav", "modality": m}))
+    plan = EvalPlan(task="nav", modalities=["rgb+diff", "rgb+event"], conditions=["nominal"],
+                    episodes=1, out=tmp_path / "eval", checkpoints=tmp_path)
+    notes = plan.event_frame_notes()
+    assert len(notes) == 1 and "nav-rgb+event.json does not say which event frames" in notes[0]

@@ -392,7 +392,8 @@ class EvalPlan:
         notes = []
         for m in self.modalities:
             _, config = checkpoint_paths(self.checkpoints, self.task, m)
-            if m != "rgb" and config.exists() and self.event_frames(m) is None:
+            if ("events" in MODALITY_INPUTS.get(m, ()) and config.exists()
+                    and self.event_frames(m) is None):
                 notes.append(f"{config} does not say which event frames it was trained on; "
                              f"they are made as {self.policy_topology.name} says (to match "
                              f"an older checkpoint: --set camera.luma_scale=0.5 for the "
