@@ -277,6 +277,42 @@ def test_a_recording_into_a_dataset_plays_on_with_the_seeds_episodes(tmp_path):
     assert len(set(seeds)) == 5
 
 
+def test_fill_records_the_holes_a_stopped_fan_out_leaves(tmp_path, capsys):
+    """A dataset missing episodes 1 and 3 of 0-4 (each worker's last, as a stop leaves it):
+    --fill records exactly those, the same episodes as an unbroken run, and then has
+    nothing left to do."""
+    from sebvs.data.compare import compare_datasets
+    from sebvs.data.record import contiguous_ranges
+    assert contiguous_ranges([0, 1, 2, 5, 7, 8]) == [(0, 3), (5, 6), (7, 9)]
+    assert contiguous_ranges([]) == []
+    topo = str(ROOT / "topologies" / "nav_record.toml")
+
+    def record(out, episodes, *extra):
+        return main(["record", topo, "--episodes", str(episodes), "--out", str(out),
+                     "--runs-dir", str(tmp_path / "runs"), "--quiet", "--timeout", "120",
+                     *SMALL_RECORD, *extra])
+
+    assert record(tmp_path / "whole", 5) == 0
+    holes = tmp_path / "holes"
+    shutil.copytree(tmp_path / "whole", holes)
+    index = json.loads((holes / "index.json").read_text())
+    index["episodes"] = [e for e in index["episodes"]
+                         if e["file"] not in ("episode_0001.h5", "episode_0003.h5")]
+    (holes / "index.json").write_text(json.dumps(index))
+    for k in (1, 3):
+        (holes / f"episode_000{k}.h5").unlink()
+    assert DatasetIndex(holes).next_episode_number() == 5    # plain resuming skips them
+    capsys.readouterr()
+    assert record(holes, 5, "--fill", "--workers", "2") == 0
+    said = capsys.readouterr()
+    assert "filling 2 missing episode(s) of 0-4" in said.err
+    assert "2 of 2 episode(s) recorded" in said.out
+    result = compare_datasets(tmp_path / "whole", holes)
+    assert result.identical and len(result.same) == 5, result.different
+    assert record(holes, 5, "--fill") == 0
+    assert "already holds episodes 0-4; nothing to fill" in capsys.readouterr().err
+
+
 def test_workers_auto_is_the_cpus_this_process_may_use(monkeypatch):
     import argparse
 

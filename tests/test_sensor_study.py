@@ -43,10 +43,9 @@ def test_a_recording_resumes_with_the_episodes_missing(tmp_path, monkeypatch):
         holding(range(30))                       # 0..29: extended by the 90 missing
         argv = study.command_of(step)
         assert argv[argv.index("--episodes") + 1] == "90"
-        holding([*range(10), *range(60, 75)])    # an interrupted fan-out's gaps: refused
-        with pytest.raises(study.GappedDataset, match="25 episodes with gaps \\(first "
-                                                      "missing: 10\\).*resume at 75"):
-            study.command_of(step)
+        holding([*range(10), *range(60, 75)])    # an interrupted fan-out's holes: filled
+        argv = study.command_of(step)
+        assert argv[-1] == "--fill" and argv[argv.index("--episodes") + 1] == "120"
         holding(range(120))
         assert study.is_done(step)
 

@@ -151,5 +151,10 @@ def register(sub) -> None:
                         "each worker's run)")
     r.add_argument("--runs-dir", default=None)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--fill", action="store_true",
+                   help="make the dataset hold episodes 0..N-1: record only the numbers "
+                        "below N it lacks (the holes a stopped --workers run leaves, then "
+                        "the tail), each the same episode it would have been, instead of "
+                        "N more after its highest")
     add_fanout_arguments(r, "episodes")
     r.set_defaults(func=_record)

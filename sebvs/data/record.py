@@ -23,6 +23,11 @@ on; a staging directory of an older driver names its own) and adds it to index.j
 episodes still missing, a bounded number of times. A driver that dies loses nothing
 finished: the next ``sebvs record`` into the dataset first adopts what the staging
 directories hold (each names its base in shard.json), then numbers on from there.
+
+Filling (``--fill``): a stopped fan-out leaves holes, one at the end of each worker's range,
+and numbering on from the highest would skip them. ``--fill --episodes N`` records exactly
+the numbers below N the dataset lacks, as shards over those ranges, so the dataset ends
+holding episodes 0..N-1, each episode k the one an unbroken run would have recorded.
 """
 from __future__ import annotations
 
@@ -126,7 +131,11 @@ def cmd_record(args) -> int:
     for adopted in adopt_staged(out):
         print(f"sebvs record: adopted {adopted}, finished by a worker of an earlier run",
               file=sys.stderr)
-    if (args.workers or 1) > 1 or args.ray is not None:
+    if (args.workers or 1) > 1 or args.ray is not None or getattr(args, "fill", False):
+        # a fill plays ranges of numbers, not one run on from the highest: the fan-out's
+        # shards, on one worker when no more are asked for
+        if args.workers is None and args.ray is None:
+            args.workers = 1
         return record_fanout(args, topo, name, out, overrides)
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
     try:
@@ -300,10 +309,25 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     stages: dict[Shard, Path] = {}
     runs_dir = str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve())
     topology = str(Path(args.topology).resolve())
-    n = args.episodes
     parts = args.workers if args.workers else (os.cpu_count() or 1)
-    # episodes [base, base + n) of the seed: the dataset's numbers, as one process plays them
-    shards = [Shard("recording", a, b) for a, b in split_episodes(base, base + n, parts)]
+    if getattr(args, "fill", False):
+        # the numbers below N the dataset lacks, as contiguous ranges, each split over the
+        # workers in proportion to its length
+        wanted = [k for k in range(args.episodes) if k not in have]
+        if not wanted:
+            print(f"sebvs record: {out} already holds episodes 0-{args.episodes - 1}; "
+                  f"nothing to fill", file=sys.stderr)
+            return 0
+        shards = [Shard("recording", a, b) for lo, hi in contiguous_ranges(wanted)
+                  for a, b in split_episodes(lo, hi, max(1, round(parts * (hi - lo)
+                                                                  / len(wanted))))]
+    else:
+        # episodes [base, base + n) of the seed: the dataset's numbers, as one process
+        # plays them
+        wanted = list(range(base, base + args.episodes))
+        shards = [Shard("recording", a, b)
+                  for a, b in split_episodes(base, base + args.episodes, parts)]
+    n = len(wanted)
     bar = tqdm(total=n, unit="ep", desc="recording", disable=args.quiet, dynamic_ncols=True)
     done: set[int] = set()
 
@@ -343,7 +367,9 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
 
     where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
         f"{args.workers} local workers"
-    print(f"sebvs record: {topo.name} -> {out} (first episode {base:04d}), {len(shards)} "
+    first = (f"filling {n} missing episode(s) of 0-{args.episodes - 1}"
+             if getattr(args, "fill", False) else f"first episode {base:04d}")
+    print(f"sebvs record: {topo.name} -> {out} ({first}), {len(shards)} "
           f"shard(s) on {where}", file=sys.stderr)
     t0 = time.monotonic()
     code = 0
@@ -365,13 +391,26 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
             shutil.rmtree(stage, ignore_errors=True)
         _remove_if_empty(out / STAGING)
     wall = time.monotonic() - t0
+    wanted_set = set(wanted)
     new = [e for e in DatasetIndex(out).episodes()
-           if int(e["file"].split("_")[1].split(".")[0]) >= base]
+           if int(e["file"].split("_")[1].split(".")[0]) in wanted_set]
     frames = sum(e["frames"] for e in new)
     print(f"sebvs record: {len(new)} of {n} episode(s) recorded, {frames} frames, "
           f"{wall:.1f} s wall; dataset {out} now holds {len(DatasetIndex(out).episodes())} "
           f"episode(s)")
     return code if code else (0 if len(new) >= n else 1)
+
+
+def contiguous_ranges(numbers: list[int]) -> list[tuple[int, int]]:
+    """Sorted distinct numbers as [a, b) ranges of consecutive ones: [0, 1, 2, 5] -> [(0, 3),
+    (5, 6)]."""
+    ranges: list[tuple[int, int]] = []
+    for k in numbers:
+        if ranges and ranges[-1][1] == k:
+            ranges[-1] = (ranges[-1][0], k + 1)
+        else:
+            ranges.append((k, k + 1))
+    return ranges
 
 
 def _raise_interrupt(signum, frame) -> None:

@@ -13,8 +13,8 @@ that ends mid-study loses at most the step in flight:
 
 record  a dataset whose index holds the planned episode count is done; one that holds
         episodes 0..k-1 is extended by the episodes missing (`sebvs record` resumes its
-        numbering at k); one with gaps (an interrupted fan-out leaves them) is refused:
-        resuming would number past the plan's range, so delete it and record it whole
+        numbering at k); one with holes (an interrupted fan-out leaves them) is filled
+        with `sebvs record --fill`, the same episodes an unbroken run records
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one)
@@ -212,10 +212,6 @@ def recorded(index: Path) -> int:
     return len(DatasetIndex(index.parent).numbers())
 
 
-class GappedDataset(RuntimeError):
-    """A partial recording whose numbers are not 0..k-1."""
-
-
 def is_done(step: Step) -> bool:
     if step.kind == "record":
         return recorded(step.done) >= step.want
@@ -223,18 +219,17 @@ def is_done(step: Step) -> bool:
 
 
 def command_of(step: Step) -> list[str]:
-    """The step's argv, a recording shortened to the episodes still missing."""
+    """The step's argv; a partial recording finished with the episodes still missing: on
+    from its end when it holds 0..k-1, else with `sebvs record --fill` (the holes an
+    interrupted fan-out leaves, then the tail: the same episodes either way)."""
     argv = list(step.argv)
     if step.kind == "record":
         index = DatasetIndex(step.done.parent)
         have, resume = index.numbers(), index.next_episode_number()
-        if resume != len(have):              # where `sebvs record` resumes: past a gap
-            missing = min(set(range(resume)) - have)
-            raise GappedDataset(
-                f"{step.done.parent} holds {len(have)} episodes with gaps (first missing: "
-                f"{missing}): sebvs record would resume at {resume}, past the "
-                f"plan's 0-{step.want - 1}; delete it and record it whole")
-        argv[argv.index("--episodes") + 1] = str(step.want - len(have))
+        if resume == len(have):
+            argv[argv.index("--episodes") + 1] = str(step.want - len(have))
+        else:
+            argv.append("--fill")
     return argv
 
 
@@ -282,13 +277,6 @@ def main() -> int:
         steps = [s for s in smoke_steps(args.out, args.workers, cells) if s.kind in kinds]
     else:
         steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
-    try:
-        for step in steps:
-            if step.kind == "record" and not is_done(step):
-                command_of(step)              # a gapped dataset: refused before anything runs
-    except GappedDataset as exc:
-        print(f"sensor study: {exc}", file=sys.stderr)
-        return 2
     if args.action == "plan":
         for s in steps:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
