@@ -105,3 +105,24 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert "rgb+event" not in means or "flicker_100/indoor" not in means["rgb+event"]
         assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md")]) == 3
         assert (tmp_path / "r.md").read_text() == text
+
+
+def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):
+    with tool_module("studies/sensor_study") as study:
+        steps = [s for s in study.plan_steps(tmp_path, 2, {"nav10"}) if s.kind == "train"]
+        log = tmp_path / "log.txt"
+        log.write_text("\n".join([
+            f"=== 2026-11-26 22:00:00 {steps[0].label}", "cmd", "=== exit 0 after 600 s",
+            f"=== 2026-11-26 22:00:00 {steps[1].label}", "cmd",        # stopped: no exit
+            f"=== 2026-11-27 09:00:00 {steps[1].label}", "cmd", "=== exit 0 after 300 s",
+            f"=== 2026-11-27 09:00:00 {steps[2].label}", "cmd", "=== exit 0 after 900 s"]))
+        took = study.step_seconds(log)
+        assert took == {steps[0].label: 600.0, steps[1].label: 300.0, steps[2].label: 900.0}
+        for s in steps[:3]:
+            s.done.parent.mkdir(parents=True, exist_ok=True)
+            s.done.write_bytes(b"")
+        text = study.status_text(steps, ["train"], took)
+        assert "train: 3/10 done" in text
+        assert f"done: {steps[2].label} (15 min)" in text
+        assert f"left: {steps[3].label} (~10 min, the median of 3 done)" in text
+        assert "estimated wall time left: 1.2 h" in text              # 7 x 10 min

@@ -233,6 +233,49 @@ def command_of(step: Step) -> list[str]:
     return argv
 
 
+def step_seconds(log: Path) -> dict[str, float]:
+    """Wall seconds per step label from the log: the finished runs of each step (a step
+    resumed over sessions has several)."""
+    took: dict[str, float] = {}
+    label = None
+    if not log.exists():
+        return took
+    for line in log.read_text().splitlines():
+        if line.startswith("=== exit "):
+            if label is not None:
+                took[label] = took.get(label, 0.0) + float(line.split(" after ")[1].split()[0])
+            label = None
+        elif line.startswith("=== "):
+            label = line[4:].split(" ", 2)[2]         # after the date and the time
+    return took
+
+
+def status_text(steps: list[Step], kinds: list[str], took: dict[str, float]) -> str:
+    """What is done (with its wall time) and what is left, each left step with an
+    estimate: the median time of the done steps of its kind, task and rate."""
+    def group(step: Step) -> str:
+        return " ".join(step.label.split()[:4])          # e.g. "train nav 10 Hz"
+    lines, total = [], 0.0
+    for kind in kinds:
+        mine = [s for s in steps if s.kind == kind]
+        done = [s for s in mine if is_done(s)]
+        lines.append(f"{kind:>6}: {len(done)}/{len(mine)} done")
+        for s in done:
+            if s.label in took:
+                lines.append(f"        done: {s.label} ({took[s.label] / 60:.0f} min)")
+        for s in mine:
+            if s in done:
+                continue
+            like = sorted(took[d.label] for d in done if group(d) == group(s) and d.label in took)
+            guess = like[len(like) // 2] if like else None
+            total += guess or 0.0
+            lines.append(f"        left: {s.label}" + (
+                f" (~{guess / 60:.0f} min, the median of {len(like)} done)" if guess else ""))
+    lines.append(f"estimated wall time left: {total / 3600:.1f} h for the steps with an "
+                 f"estimate (trainings run --parallel at once)")
+    return "\n".join(lines)
+
+
 def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | None, float]:
     """Run one step, its output to the log; (step, exit code, seconds), or a None code
     when an earlier step failed and this one never started."""
@@ -282,11 +325,7 @@ def main() -> int:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
         return 0
     if args.action == "status":
-        for kind in kinds:
-            mine = [s for s in steps if s.kind == kind]
-            done = [s for s in mine if is_done(s)]
-            print(f"{kind:>6}: {len(done)}/{len(mine)} done"
-                  + "".join(f"\n        left: {s.label}" for s in mine if not is_done(s)))
+        print(status_text(steps, kinds, step_seconds(args.out / "log.txt")))
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
