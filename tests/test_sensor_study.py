@@ -114,8 +114,10 @@ def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):
         log.write_text("\n".join([
             f"=== 2026-11-26 22:00:00 {steps[0].label}", "cmd", "=== exit 0 after 600 s",
             f"=== 2026-11-26 22:00:00 {steps[1].label}", "cmd",        # stopped: no exit
-            f"=== 2026-11-27 09:00:00 {steps[1].label}", "cmd", "=== exit 0 after 300 s",
-            f"=== 2026-11-27 09:00:00 {steps[2].label}", "cmd", "=== exit 0 after 900 s"]))
+            f"=== 2026-11-27 09:00:00 {steps[1].label}", "cmd",      # side by side
+            f"=== 2026-11-27 09:00:00 {steps[2].label}", "cmd",
+            f"=== exit 0 after 900 s: {steps[2].label}",
+            f"=== exit 0 after 300 s: {steps[1].label}"]))
         took = study.step_seconds(log)
         assert took == {steps[0].label: 600.0, steps[1].label: 300.0, steps[2].label: 900.0}
         for s in steps[:3]:

@@ -235,15 +235,18 @@ def command_of(step: Step) -> list[str]:
 
 def step_seconds(log: Path) -> dict[str, float]:
     """Wall seconds per step label from the log: the finished runs of each step (a step
-    resumed over sessions has several)."""
+    resumed over sessions has several). An exit line names its step; one written before
+    it did belongs to the step started last."""
     took: dict[str, float] = {}
     label = None
     if not log.exists():
         return took
     for line in log.read_text().splitlines():
         if line.startswith("=== exit "):
-            if label is not None:
-                took[label] = took.get(label, 0.0) + float(line.split(" after ")[1].split()[0])
+            seconds, _, named = line.split(" after ")[1].partition(": ")
+            if named or label is not None:
+                key = named or label
+                took[key] = took.get(key, 0.0) + float(seconds.split()[0])
             label = None
         elif line.startswith("=== "):
             label = line[4:].split(" ", 2)[2]         # after the date and the time
@@ -287,7 +290,8 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
         f.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n")
         f.flush()
         code = subprocess.run(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT).returncode
-        f.write(f"=== exit {code} after {time.monotonic() - t0:.0f} s\n")
+        # the label again: trainings run side by side and write into one log
+        f.write(f"=== exit {code} after {time.monotonic() - t0:.0f} s: {step.label}\n")
     return step, code, time.monotonic() - t0
 
 
