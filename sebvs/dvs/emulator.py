@@ -438,13 +438,12 @@ class EventEmulator:
         keep[start[ok]] = True
         last[ok] = t_s[start[ok]]
         live = np.flatnonzero(counts > 1)
-        pos, left, live_last = start[live] + 1, counts[live] - 1, last[live]
+        pos, left = start[live] + 1, counts[live] - 1
         while live.size:
-            ok = t_s[pos] - period >= live_last
+            ok = t_s[pos] - period >= last[live]
             keep[pos[ok]] = True
-            live_last[ok] = t_s[pos[ok]]
-            last[live] = live_last
+            last[live[ok]] = t_s[pos[ok]]
             more = left > 1
-            live, pos, left, live_last = live[more], pos[more] + 1, left[more] - 1, live_last[more]
+            live, pos, left = live[more], pos[more] + 1, left[more] - 1
         self.last_t.ravel()[first] = last
         return events[np.sort(order[keep])]
