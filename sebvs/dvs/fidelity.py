@@ -17,6 +17,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .emulator import pixel_time_order
+
 
 def count_maps(events: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """ON and OFF events per pixel: int64 [2, h, w] (index 0 ON, 1 OFF)."""
@@ -52,7 +54,7 @@ def nearest_time_errors(test: np.ndarray, reference: np.ndarray, shape: tuple[in
     if reference.size == 0:
         return np.full(test.size, np.inf)
     ref_key = _keys(reference, shape)
-    order = np.lexsort((reference["t"], ref_key))
+    order = pixel_time_order(ref_key, reference["t"].astype(np.int64))
     ref_key, ref_t = ref_key[order], reference["t"][order].astype(np.int64)
     key, t = _keys(test, shape), test["t"].astype(np.int64)
     # the first reference event of the same key at or after t, and the one before it
