@@ -131,7 +131,7 @@ def cmd_record(args) -> int:
     for adopted in adopt_staged(out):
         print(f"sebvs record: adopted {adopted}, finished by a worker of an earlier run",
               file=sys.stderr)
-    if (args.workers or 1) > 1 or args.ray is not None or getattr(args, "fill", False):
+    if (args.workers or 1) > 1 or args.ray is not None or args.fill:
         # a fill plays ranges of numbers, not one run on from the highest: the fan-out's
         # shards, on one worker when no more are asked for
         if args.workers is None and args.ray is None:
@@ -310,7 +310,7 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     runs_dir = str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve())
     topology = str(Path(args.topology).resolve())
     parts = args.workers if args.workers else (os.cpu_count() or 1)
-    if getattr(args, "fill", False):
+    if args.fill:
         # the numbers below N the dataset lacks, as contiguous ranges, each split over the
         # workers in proportion to its length
         wanted = [k for k in range(args.episodes) if k not in have]
@@ -368,7 +368,7 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
         f"{args.workers} local workers"
     first = (f"filling {n} missing episode(s) of 0-{args.episodes - 1}"
-             if getattr(args, "fill", False) else f"first episode {base:04d}")
+             if args.fill else f"first episode {base:04d}")
     print(f"sebvs record: {topo.name} -> {out} ({first}), {len(shards)} "
           f"shard(s) on {where}", file=sys.stderr)
     t0 = time.monotonic()

@@ -8,10 +8,10 @@ of the modality, or because of one training run?
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
 one seed; a NAME given again joins another directory to that run (where its modalities
-or its cells were evaluated apart; each cell of a modality in one of them). NAME@TAG=DIR renames that directory's
-modalities to MODALITY@TAG, so that one modality under two settings can be compared (a
-sensor, a recipe: --a event@fr --b event). All must have played the same task and
-topology seed (the same episodes).
+or its cells were evaluated apart; each cell of a modality in one of them). NAME@TAG=DIR
+renames that directory's modalities to MODALITY@TAG, so that one modality under two
+settings can be compared (a sensor, a recipe: --a event@fr --b event). All must have
+played the same task and topology seed (the same episodes).
 
 Per condition and scenario, one row: each run's A - B (points, over the episodes both
 scored), the mean over runs of A, B and A - B, how many runs have A ahead, and a paired

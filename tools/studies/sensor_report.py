@@ -32,7 +32,6 @@ from tools.studies.sensor_study import (EVAL_GROUPS, PLAN_FILE, PLAN_SEEDS,  # n
                                         READ_METRIC, eval_dir)
 
 RATES = (10, 30)
-A, B = "rgb+event", "rgb+diff"
 # the plan's cells, in its order: (condition, scenarios)
 PLAN_CELLS = {
     "nav": [(c, s) for c in ("nominal_physical", "hdr", "dusk", "dusk_fast")

@@ -198,7 +198,7 @@ def smoke_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
             del argv[split:split + 2]
             _set_arg(argv, "--seed", "1000")
             _set_arg(argv, "--episodes", "1")
-            if "--task" in argv and argv[argv.index("--task") + 1] == "nav":
+            if argv[argv.index("--task") + 1] == "nav":
                 argv += ["--set", "sim.episode_s=2"]
         elif step.kind == "read":
             argv = [a for a in argv if not a.startswith(tuple(
