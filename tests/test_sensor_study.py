@@ -126,5 +126,41 @@ def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):
         text = study.status_text(steps, ["train"], took)
         assert "train: 3/10 done" in text
         assert f"done: {steps[2].label} (15 min)" in text
-        assert f"left: {steps[3].label} (~10 min, the median of 3 done)" in text
-        assert "estimated wall time left: 1.2 h" in text              # 7 x 10 min
+        assert f"left: {steps[3].label} (~10 min, from 3 done like it)" in text
+        assert "estimated wall time left: 0.6 h (trainings 2 at once)" in text   # 7 x 10 / 2
+
+
+def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        frames = {"study_nav10": 100, "study_nav30": 300}
+        monkeypatch.setattr(study, "dataset_dir",
+                            lambda task, rate: tmp_path / f"study_{task}{rate}")
+        for name, n in frames.items():
+            (tmp_path / name).mkdir()
+            (tmp_path / name / "index.json").write_text(json.dumps(
+                {"version": 1, "task": "nav", "episodes": [
+                    {"file": f"episode_{i:04d}.h5", "frames": n // 4} for i in range(4)]}))
+        steps = study.plan_steps(tmp_path, 2, {"nav10", "nav30"})
+        train = [s for s in steps if s.kind == "train"]
+        first = train[0]
+        first.done.parent.mkdir(parents=True, exist_ok=True)
+        first.done.write_bytes(b"")
+        took = {first.label: 600.0}
+        assert study.step_work(first) == 100 * 10                 # frames x epochs
+        text = study.status_text(train, ["train"], took)
+        nav30 = next(s for s in train if " 30 Hz " in s.label)
+        # three times the frames: three times the time, from the one nav 10 Hz training
+        assert f"left: {nav30.label} (~30 min, scaled by frames from 1 done trainings)" in text
+        evals = [s for s in steps if s.kind == "eval"]
+        main0, flicker0 = evals[0], evals[1]
+        # seed 0: four modalities, the expert and no action; 8 cells of 20 x 10 s episodes
+        assert study.step_work(main0) == 6 * 8 * 20 * 10.0
+        assert study.step_work(flicker0) == 6 * 2 * 20 * 10.0
+        seed1 = next(s for s in evals if "seed 1 main" in s.label)
+        assert study.step_work(seed1) == 3 * 8 * 20 * 10.0      # three modalities, no refs
+        main0.done.parent.mkdir(parents=True, exist_ok=True)
+        main0.done.write_bytes(b"")
+        text = study.status_text(evals, ["eval"], {main0.label: 1200.0})
+        assert f"left: {seed1.label} (~10 min, from 1 done like it)" in text   # half the rows
+        assert f"left: {flicker0.label}\n" in text + "\n"          # no flicker run done yet
+        assert "steps have no estimate yet" in text

@@ -253,12 +253,44 @@ def step_seconds(log: Path) -> dict[str, float]:
     return took
 
 
-def status_text(steps: list[Step], kinds: list[str], took: dict[str, float]) -> str:
+def step_work(step: Step) -> float:
+    """A step's size in the unit its time scales with: a training's frames times its
+    epochs (the dataset's, as indexed), an evaluation's simulated seconds over all its
+    rows (modalities, and the expert and no action where it has them)."""
+    argv = step.argv
+    if step.kind == "train":
+        data = Path(argv[argv.index("--data") + 1])
+        frames = (sum(e.get("frames", 0) for e in DatasetIndex(data).episodes())
+                  if (data / "index.json").exists() else 0)
+        return float(frames * int(argv[argv.index("--epochs") + 1]))
+    if step.kind == "eval":
+        task = argv[argv.index("--task") + 1]
+        rows = len(argv[argv.index("--modalities") + 1].split(","))
+        rows += 0 if "--no-expert" in argv else 1
+        rows += 0 if "--no-baseline" in argv else 1
+        cells = (len(argv[argv.index("--conditions") + 1].split(","))
+                 * len(argv[argv.index("--scenarios") + 1].split(",")))
+        episode_s = {"nav": 10.0, "arm": 2.0}[task]
+        return float(rows * cells * int(argv[argv.index("--episodes") + 1]) * episode_s)
+    return 1.0
+
+
+def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
+                parallel: int = 2) -> str:
     """What is done (with its wall time) and what is left, each left step with an
-    estimate: the median time of the done steps of its kind, task and rate."""
+    estimate: the median time per unit of work (step_work) of the done steps of its kind,
+    task, rate (and evaluation group), times its work; a training with none of those done
+    is scaled from every done training. Trainings run ``parallel`` at once."""
     def group(step: Step) -> str:
-        return " ".join(step.label.split()[:4])          # e.g. "train nav 10 Hz"
-    lines, total = [], 0.0
+        words = step.label.split()
+        return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
+
+    def rate(done: list[Step]) -> float | None:
+        per = sorted(took[d.label] / step_work(d) for d in done
+                     if d.label in took and step_work(d) > 0)
+        return per[len(per) // 2] if per else None
+
+    lines, total, unknown = [], 0.0, 0
     for kind in kinds:
         mine = [s for s in steps if s.kind == kind]
         done = [s for s in mine if is_done(s)]
@@ -269,13 +301,20 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float]) -> 
         for s in mine:
             if s in done:
                 continue
-            like = sorted(took[d.label] for d in done if group(d) == group(s) and d.label in took)
-            guess = like[len(like) // 2] if like else None
-            total += guess or 0.0
+            like = [d for d in done if group(d) == group(s) and d.label in took]
+            per, how = rate(like), f"from {len(like)} done like it"
+            if per is None and kind == "train":
+                scaled = [d for d in done if d.label in took]
+                per, how = rate(scaled), f"scaled by frames from {len(scaled)} done trainings"
+            guess = per * step_work(s) if per is not None else None
+            if guess is None:
+                unknown += 1
+            else:
+                total += guess / (parallel if kind == "train" else 1)
             lines.append(f"        left: {s.label}" + (
-                f" (~{guess / 60:.0f} min, the median of {len(like)} done)" if guess else ""))
-    lines.append(f"estimated wall time left: {total / 3600:.1f} h for the steps with an "
-                 f"estimate (trainings run --parallel at once)")
+                f" (~{guess / 60:.0f} min, {how})" if guess is not None else ""))
+    lines.append(f"estimated wall time left: {total / 3600:.1f} h (trainings {parallel} at "
+                 f"once)" + (f"; {unknown} steps have no estimate yet" if unknown else ""))
     return "\n".join(lines)
 
 
@@ -329,7 +368,7 @@ def main() -> int:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
         return 0
     if args.action == "status":
-        print(status_text(steps, kinds, step_seconds(args.out / "log.txt")))
+        print(status_text(steps, kinds, step_seconds(args.out / "log.txt"), args.parallel))
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
