@@ -144,6 +144,29 @@ def test_preload_holds_the_files_values_and_auto_declines_what_does_not_fit(
     held.close()
 
 
+@pytest.mark.parametrize("modality", ["rgb+diff", "rgb+event"])
+def test_preload_of_a_thinned_set_reads_only_the_rows_its_items_use(gain_data, modality):
+    eps = load_index(gain_data)
+    norm = Normalisation(size=32)
+    lazy = EpisodeFrames(gain_data, eps, "nav", modality, norm, max_frames=9)
+    held = EpisodeFrames(gain_data, eps, "nav", modality, norm, max_frames=9)
+    whole = EpisodeFrames(gain_data, eps, "nav", modality, norm)
+    rows = sum(r.size for _, r in held._rows_read())
+    # rgb+diff also reads the frame before each item's (none before an episode's first)
+    assert (rows > len(held)) == (modality == "rgb+diff") and rows <= 2 * len(held)
+    per_frame = 32 * 32 * 3 + (2 * 32 * 32 if modality == "rgb+event" else 0)
+    assert held.frame_bytes() == rows * per_frame < whole.frame_bytes() / 4
+    n = held.preload()
+    assert held.frame_bytes() <= n < held.frame_bytes() + 4096     # + ticks and targets
+    for i in range(len(lazy)):
+        np.testing.assert_array_equal(lazy[i][0], held[i][0])
+        np.testing.assert_array_equal(lazy[i][1], held[i][1])
+    with pytest.raises(KeyError, match="frame .* is not held"):
+        next(iter(held._cached.values())).rgb[10_000]
+    for ds in (lazy, held, whole):
+        ds.close()
+
+
 def test_gated_stem_trains_rgb_event_and_refuses_other_modalities(gain_data, tmp_path):
     kw = dict(epochs=1, batch=8, max_frames=32, norm=Normalisation(size=32), stem="gated",
               **QUIET)

@@ -15,10 +15,10 @@ released, not closed: h5py's close walks every open HDF5 object of the process, 
 large dataset would then reopen a file per item (about 3 ms), so `EpisodeBlockSampler`
 shuffles episodes into blocks that fit the open set and the frames within each block.
 
-`EpisodeFrames.preload()` reads the streams a modality needs whole into memory instead,
-as the files store them (uint8 frames): one read per episode and stream rather than an
-HDF5 chunk decode per item, the same values, and DataLoader workers forked after it share
-the pages. `train.py` preloads when the frames fit a share of the available memory.
+`EpisodeFrames.preload()` reads the streams a modality needs into memory instead, as the
+files store them (uint8 frames): one read per episode and stream rather than an HDF5 chunk
+decode per item, the same values, and DataLoader workers forked after it share the pages.
+It reads whole episodes, or only the rows the items use where ``max_frames`` thinned them. `train.py` preloads when the frames fit a share of the available memory.
 """
 from __future__ import annotations
 
@@ -127,15 +127,39 @@ def previous_rgb(ep: Episode, t: int) -> np.ndarray:
     return ep.rgb[t]
 
 
-class CachedEpisode:
-    """The streams of one episode a modality reads, whole in memory: ``rgb`` [T, H, W, 3]
-    and ``event_frame`` [T, 2K, H, W] uint8 (None where not read), ``tick`` [T],
-    ``target`` [T, 2|6] float32; the attributes `previous_rgb` and `EpisodeFrames` use."""
+class HeldRows:
+    """Some rows of a recorded [T, ...] stream, in memory: indexed by the row's frame number
+    like the full stream, for the frame numbers it holds (a KeyError for any other)."""
 
-    def __init__(self, ep: Episode, streams: tuple[str, ...]):
+    def __init__(self, rows: np.ndarray, data: np.ndarray):
+        self.rows, self.data = rows, data
+        self.shape = (int(rows[-1]) + 1 if rows.size else 0, *data.shape[1:])
+        self.nbytes = data.nbytes
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        i = int(np.searchsorted(self.rows, t))
+        if i == self.rows.size or self.rows[i] != t:
+            raise KeyError(f"frame {t} is not held (held: {self.rows.size} rows)")
+        return self.data[i]
+
+
+class CachedEpisode:
+    """The streams of one episode a modality reads, in memory: ``rgb`` [T, H, W, 3] and
+    ``event_frame`` [T, 2K, H, W] uint8 (None where not read), ``tick`` [T], ``target``
+    [T, 2|6] float32; the attributes `previous_rgb` and `EpisodeFrames` use.
+
+    ``rows`` (sorted frame numbers), when given, holds only those rows of the images (as
+    `HeldRows`): a run capped by ``max_frames`` reads a few frames of each episode."""
+
+    def __init__(self, ep: Episode, streams: tuple[str, ...], rows: np.ndarray | None = None):
         self.path, self.task = ep.path, ep.task
-        self.rgb = ep.rgb[:] if {"rgb", "rgb_prev"} & set(streams) else None
-        self.event_frame = ep.event_frame[:] if "events" in streams else None
+
+        def read(stream):
+            if rows is None:
+                return stream[:]
+            return HeldRows(rows, stream[rows.tolist()] if rows.size else stream[:0])
+        self.rgb = read(ep.rgb) if {"rgb", "rgb_prev"} & set(streams) else None
+        self.event_frame = read(ep.event_frame) if "events" in streams else None
         self.tick = ep.tick[:]
         self.target = np.asarray(ep.target[:], np.float32)
 
@@ -189,8 +213,9 @@ class EpisodeFrames:
         return len(self.pairs)
 
     def frame_bytes(self) -> int:
-        """What preload() would hold in frames: the used episodes' frames (as the index
-        counts them) of the streams read, sized from the first episode's frame shapes."""
+        """What preload() would hold in frames: the rows it reads of the used episodes (every
+        frame, as the index counts them, unless ``max_frames`` cut the episode) times the
+        streams' bytes per frame, sized from the first episode's frame shapes."""
         used = np.unique(self.pairs[:, 0])
         if not len(used):
             return 0
@@ -199,18 +224,33 @@ class EpisodeFrames:
         per_frame = int(np.prod(ep.rgb.shape[1:])) if {"rgb", "rgb_prev"} & streams else 0
         if "events" in streams:
             per_frame += int(np.prod(ep.event_frame.shape[1:]))
-        return per_frame * sum(self.frame_counts[int(ei)] for ei in used)
+        return per_frame * sum(self.frame_counts[int(ei)] if rows is None else rows.size
+                               for ei, rows in self._rows_read())
+
+    def _rows_read(self):
+        """(episode, rows) for every used episode: None when every frame is used (the whole
+        streams are read), else the sorted frame numbers its items read, with the one before
+        each where the modality takes the previous frame."""
+        prev = "rgb_prev" in MODALITY_INPUTS[self.modality]
+        for ei in np.unique(self.pairs[:, 0]):
+            ts = self.pairs[self.pairs[:, 0] == ei, 1]
+            if ts.size == self.frame_counts[int(ei)]:
+                yield int(ei), None
+                continue
+            if prev:
+                ts = np.concatenate([ts, ts[ts > 0] - 1])
+            yield int(ei), np.unique(ts)
 
     def preload(self, progress: bool = False) -> int:
-        """Read every used episode's streams into memory (CachedEpisode); the bytes held.
-        Items then come from memory; the files are released."""
+        """Read the used rows of every used episode's streams into memory (CachedEpisode);
+        the bytes held. Items then come from memory; the files are released."""
         from tqdm import tqdm
         streams = MODALITY_INPUTS[self.modality]
-        for ei in tqdm(np.unique(self.pairs[:, 0]), desc="frames to memory", unit="episode",
-                       disable=not progress, leave=False):
-            ei = int(ei)
+        used = list(self._rows_read())
+        for ei, rows in tqdm(used, desc="frames to memory", unit="episode",
+                             disable=not progress, leave=False):
             if ei not in self._cached:
-                self._cached[ei] = CachedEpisode(self._episode(ei), streams)
+                self._cached[ei] = CachedEpisode(self._episode(ei), streams, rows)
                 handle = self._handles.pop(ei, None)
                 if handle is not None:
                     handle.release()
