@@ -103,8 +103,10 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert means["rgb+event"]["hdr/indoor"] == pytest.approx(0.8)
         assert means["no_action"]["hdr/indoor"] == pytest.approx(0.05)
         assert "rgb+event" not in means or "flicker_100/indoor" not in means["rgb+event"]
-        assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md")]) == 3
+        assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md"),
+                         "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
+        assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):

@@ -3,6 +3,7 @@
 what tools/studies/sensor_study.py wrote, in the shape docs/study_sensors_plan.md fixes.
 
     tools/studies/sensor_report.py [--out out/study_sensors] [--markdown FILE] [--json FILE]
+                                   [--plot FILE]
 
 Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff at each
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
@@ -15,6 +16,10 @@ JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What 
 predicts", copied into PREDICTIONS below. A cell the plan lists that has no reading yet is
 shown as "not yet run"; one that seed_table.py left out (a row scored no episode of it)
 as "no reading". The exit code is 0 when every planned cell has a reading, else 3.
+
+--plot draws the headline tables as one figure: per task and cell, the effect and its
+interval at each rate, coloured by the rule's verdict, the rule's threshold as a band, and
+the plan's prediction beside each cell.
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, PLAN_FILE, PLAN_SEEDS,  # noqa: E402
-                                        READ_METRIC, eval_dir)
+                                        READ_METRIC, READ_RULE, eval_dir)
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
@@ -187,6 +192,75 @@ def report(out: Path) -> tuple[str, dict, bool]:
     return "\n".join(lines), data, done
 
 
+VERDICT_COLOUR = {HELPS: "tab:green", HURTS: "tab:red", NONE: "0.45"}
+RATE_MARKER = {10: "o", 30: "s"}
+SHORT = {HELPS: "helps", HURTS: "hurts", NONE: "none"}
+
+
+def plot(data: dict, path: Path) -> None:
+    """The headline tables as a forest plot, one panel per task: per cell (top to bottom
+    in the plan's order) RGB+Event - RGB+Diff in points at each rate, a marker at the
+    mean over training seeds and a line for the episodes' paired 95 % interval, coloured
+    by the rule's verdict (hollow where the cell has no reading yet); the grey band is the
+    rule's least difference; the plan's prediction is written at the right."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    min_diff = float(READ_RULE[READ_RULE.index("--min-diff") + 1])
+    tasks = list(data["tasks"])
+    fig, axes = plt.subplots(1, len(tasks), figsize=(6.2 * len(tasks), 5.2), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        readings = data["tasks"][task]["readings"]
+        cells = PLAN_CELLS[task]
+        ax.axvspan(-min_diff, min_diff, color="0.92", zorder=0)
+        ax.axvline(0, color="black", lw=0.8)
+        for i, (condition, scenario) in enumerate(cells):
+            y = len(cells) - 1 - i
+            for k, rate in enumerate(RATES):
+                yk = y + (0.15 if k == 0 else -0.15)
+                table = readings.get(rate) or readings.get(str(rate))
+                cell = f"{condition}/{scenario}"
+                r = (table or {}).get("cells", {}).get(cell)
+                if r is None:
+                    left_out = cell in (table or {}).get("left_out", [])
+                    ax.plot(0, yk, "x" if left_out else RATE_MARKER[rate],
+                            mfc="none", mec="0.6", color="0.6", ms=5)
+                    continue
+                colour = VERDICT_COLOUR[verdict(r["reading"])]
+                lo, hi = (100 * v for v in r["episodes"]["ci95"])
+                ax.hlines(yk, lo, hi, color=colour, lw=1.5)
+                ax.plot(100 * r["mean_diff"], yk, RATE_MARKER[rate], color=colour, ms=6)
+            pred = PREDICTIONS[(task, condition)]
+            ax.annotate(" / ".join(SHORT[pred[r][0]] if pred[r] else "?" for r in RATES),
+                        (1.01, y), xycoords=("axes fraction", "data"), fontsize=7,
+                        va="center", color="0.3")
+        ax.set_yticks(range(len(cells)),
+                      [f"{c}/{s}" for c, s in reversed(cells)], fontsize=8)
+        ax.set_ylim(-0.7, len(cells) - 0.3)
+        metric = tables_metric(task, readings)
+        ax.set_xlabel(f"RGB+Event - RGB+Diff, {metric} (points)")
+        ax.set_title(f"{task}; at right the plan's prediction at 10 / 30 Hz", fontsize=9)
+        span = max([min_diff + 5] + [abs(x) + 2 for x in ax.get_xlim()])
+        ax.set_xlim(-span, span)
+    handles = [Line2D([], [], marker=RATE_MARKER[r], ls="", color="0.3", label=f"{r} Hz")
+               for r in RATES]
+    handles += [Line2D([], [], color=c, lw=2, label=v) for v, c in VERDICT_COLOUR.items()]
+    handles.append(Line2D([], [], marker="o", ls="", mfc="none", mec="0.6",
+                          label="not yet run"))
+    handles.append(Line2D([], [], marker="x", ls="", color="0.6", label="no reading"))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8,
+               frameon=False)
+    fig.suptitle(f"The sensor study ({PLAN_FILE}): per cell, the mean over training seeds "
+                 f"and the episodes' 95 % interval\ngrey band: the rule's "
+                 f"{min_diff:g}-point least difference; predictions: helps, hurts, "
+                 f"none (no clear difference), ? (no firm one)", fontsize=9)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.95), w_pad=6)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -194,6 +268,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the study driver's --out (default out/study_sensors)")
     ap.add_argument("--markdown", type=Path, help="write the tables here (default: print)")
     ap.add_argument("--json", type=Path, help="also write the data behind them here")
+    ap.add_argument("--plot", type=Path, help="also draw them as one figure here (PNG)")
     args = ap.parse_args(argv)
     text, data, done = report(args.out)
     if args.markdown:
@@ -204,6 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(data, indent=1) + "\n")
+    if args.plot:
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        plot(data, args.plot)
     if not done:
         print("sensor_report: some planned cells have no reading yet (see the tables)",
               file=sys.stderr)
