@@ -166,3 +166,40 @@ def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch)
         assert f"left: {seed1.label} (~10 min, from 1 done like it)" in text   # half the rows
         assert f"left: {flicker0.label}\n" in text + "\n"          # no flicker run done yet
         assert "steps have no estimate yet" in text
+
+
+def test_run_finishes_each_cell_before_the_next_and_stops_at_a_failure(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        ran = []
+
+        def fake_step(step, log, stop):
+            if stop.is_set():
+                return step, None, 0.0
+            ran.append(step)
+            if step.label != fail_at:
+                step.done.parent.mkdir(parents=True, exist_ok=True)
+                step.done.write_bytes(b"")
+            return step, 0 if step.label != fail_at else 1, 0.0
+
+        monkeypatch.setattr(study, "run_step", fake_step)
+        fail_at = None
+        argv = ["run", "--steps", "train,eval,read", "--out", str(tmp_path), "--parallel", "1"]
+        assert study.main(argv) == 0
+        cells = [study.step_cell(s) for s in ran]
+        assert cells == sorted(cells, key=["nav10", "nav30", "arm10", "arm30"].index)
+        for cell in ("nav10", "arm30"):
+            kinds = [s.kind for s in ran if study.step_cell(s) == cell]
+            assert kinds == sorted(kinds, key=["train", "eval", "read"].index)
+            assert kinds.count("read") == 1 and kinds.count("eval") >= 3
+        assert len(ran) == 36 + 18 + 4
+        # all done: nothing runs again
+        ran.clear()
+        assert study.main(argv) == 0 and ran == []
+        # a failed training stops the run before any later cell or kind starts
+        first = next(s for s in study.plan_steps(tmp_path, 2, {"nav30"}) if s.kind == "train")
+        first.done.unlink()
+        later = next(s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "eval")
+        later.done.unlink()
+        fail_at = first.label
+        assert study.main(argv) == 1
+        assert [s.label for s in ran] == [first.label]

@@ -22,6 +22,10 @@ read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Dif
         rule, into OUT/read/<task><rate>.json and .png (nav joins each seed's two
         evaluation groups); tools/studies/sensor_report.py then builds the report's tables
 
+`run` goes cell by cell (nav 10 Hz, nav 30 Hz, arm 10 Hz, arm 30 Hz): the kinds of step
+asked for, in order, for one task and rate before the next, so that a study spread over
+sessions finishes whole cells first (and the evaluation meets real checkpoints early).
+
 Stop it with Ctrl-C, or SIGTERM to its process group (a job started in the background by
 a script ignores SIGINT): `sebvs record` keeps every finished episode, and a step that
 fails or is stopped stops the steps after it. Trainings run two at a time (--parallel,
@@ -334,7 +338,7 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
     return step, code, time.monotonic() - t0
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n\n".join(__doc__.split("\n\n")[1:]))
@@ -349,7 +353,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     kinds = args.steps.split(",")
     cells = set(args.only.split(",")) if args.only else None
     known = {f"{t}{r}" for t in ("nav", "arm") for r in (10, 30)}
@@ -373,25 +377,38 @@ def main() -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
     print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
-    for kind in kinds:
-        todo = [s for s in steps if s.kind == kind and not is_done(s)]
-        parallel = args.parallel if kind == "train" else 1
-        stop, failed = threading.Event(), False
-        with ThreadPoolExecutor(parallel) as pool:
-            futures = [pool.submit(run_step, s, log, stop) for s in todo]
-            for future in as_completed(futures):
-                step, code, took = future.result()
-                if code is None:
-                    continue                     # never started: an earlier step failed
-                state = "done" if code == 0 and is_done(step) else f"FAILED (exit {code})"
-                print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
-                if state != "done":
-                    stop.set()                   # nothing new starts; running ones end
-                    failed = True
-        if failed:
-            print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
-            return 1
+    for cell in dict.fromkeys(step_cell(s) for s in steps):
+        for kind in kinds:
+            todo = [s for s in steps if step_cell(s) == cell and s.kind == kind
+                    and not is_done(s)]
+            if not run_together(todo, log, args.parallel if kind == "train" else 1):
+                print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
+                return 1
     return 0
+
+
+def step_cell(step: Step) -> str:
+    """The task and rate a step belongs to, e.g. "nav10" (from its label)."""
+    words = step.label.removeprefix("smoke: ").split()
+    return words[1] + words[2]
+
+
+def run_together(todo: list[Step], log: Path, parallel: int) -> bool:
+    """Run the steps, ``parallel`` at once; False when one failed (those not yet started
+    then never start; the running ones end)."""
+    stop, failed = threading.Event(), False
+    with ThreadPoolExecutor(parallel) as pool:
+        futures = [pool.submit(run_step, s, log, stop) for s in todo]
+        for future in as_completed(futures):
+            step, code, took = future.result()
+            if code is None:
+                continue                     # never started: an earlier step failed
+            state = "done" if code == 0 and is_done(step) else f"FAILED (exit {code})"
+            print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
+            if state != "done":
+                stop.set()                   # nothing new starts; running ones end
+                failed = True
+    return not failed
 
 
 if __name__ == "__main__":
