@@ -157,7 +157,9 @@ class CachedEpisode:
         def read(stream):
             if rows is None:
                 return stream[:]
-            return HeldRows(rows, stream[rows.tolist()] if rows.size else stream[:0])
+            # a row at a time: one chunk each (h5py's list selection took 59 ms for 12 rows)
+            return HeldRows(rows, np.stack([stream[int(t)] for t in rows]) if rows.size
+                            else stream[:0])
         self.rgb = read(ep.rgb) if {"rgb", "rgb_prev"} & set(streams) else None
         self.event_frame = read(ep.event_frame) if "events" in streams else None
         self.tick = ep.tick[:]
