@@ -16,6 +16,7 @@ from pathlib import Path
 from .runtime.profiler import ProfileCollector, format_loop_latency, format_report
 from .runtime.supervisor import RunFailed, Supervisor
 from .runtime.topology import load_topology
+from .sensors.pairs import SENSORS, topology_overrides
 
 
 def _format_metrics(records: list[dict]) -> str:
@@ -100,7 +101,8 @@ def _cmd_demo(args) -> int:
     if args.swap_to and args.swap_after is None:
         print("sebvs demo: --swap-to needs --swap-after TICKS", file=sys.stderr)
         return 2
-    return run_demo(args.topology, args.set, args.swap_to, args.swap_after or 0,
+    overrides = ([] if args.sensor is None else topology_overrides(args.sensor)) + args.set
+    return run_demo(args.topology, overrides, args.swap_to, args.swap_after or 0,
                     args.profile_json, args.clock)
 
 
@@ -112,6 +114,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "after --swap-after control ticks; print per-hop latency and the "
                                    "tracker's metrics per episode and modality.")
     d.add_argument("topology")
+    d.add_argument("--sensor", choices=SENSORS, default=None,
+                   help="run this sensor pair with the checkpoints trained on it: physical "
+                        "(the shipped topologies' own) or ideal8 (the 8-bit benchmark before "
+                        "it: camera.sensor=\"ideal8\", the emulator's \"paper\" preset, "
+                        "checkpoints/ideal8/); --set lines come after it")
     d.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE")
     d.add_argument("--swap-to", choices=["rgb", "event", "rgb+event"], default=None)
     d.add_argument("--swap-after", type=int, default=None, metavar="TICKS",

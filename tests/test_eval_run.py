@@ -3,6 +3,7 @@ policy, 2 episodes, real runs, with episode videos; the held-out split over both
 scene variants; how a plan picks its seeds."""
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -198,13 +199,70 @@ def test_eval_command_refuses_a_seed_outside_its_split(tmp_path, capsys):
     assert not (tmp_path / "eval").exists()
 
 
-def test_conditions_all_names_every_condition_of_the_task():
+def test_conditions_all_names_every_condition_of_the_sensor_pair():
     from sebvs.eval.cli import conditions_of
-    from sebvs.eval.run import ARM_CONDITIONS, NAV_CONDITIONS
-    assert conditions_of("all", "arm") == list(ARM_CONDITIONS)
-    assert conditions_of("all", "nav") == list(NAV_CONDITIONS)
-    assert "moving" in conditions_of("all", "arm") and "moving" not in NAV_CONDITIONS
-    assert conditions_of("fast, blur,", "nav") == ["fast", "blur"]
+    from sebvs.eval.run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, NAV_CONDITIONS,
+                                NAV_PHYSICAL_CONDITIONS)
+    assert conditions_of("all", "arm", "ideal8") == list(ARM_CONDITIONS)
+    assert conditions_of("all", "nav", "ideal8") == list(NAV_CONDITIONS)
+    assert conditions_of("all", "nav") == list(NAV_PHYSICAL_CONDITIONS)     # the default pair
+    assert conditions_of("all", "arm", "physical") == list(ARM_PHYSICAL_CONDITIONS)
+    assert "moving" in conditions_of("all", "arm", "ideal8") and "moving" not in NAV_CONDITIONS
+    assert conditions_of("fast, blur,", "nav", "ideal8") == ["fast", "blur"]
+    assert conditions_of(None, "nav") == ["nominal_physical"]
+    assert conditions_of(None, "arm", "ideal8") == ["nominal"]
+    with pytest.raises(ValueError, match=r"condition 'nominal' is the ideal8 sensor pair's.*"
+                                         r"give --sensor ideal8"):
+        conditions_of("hdr,nominal", "nav")
+    with pytest.raises(ValueError, match=r"condition 'hdr' is the physical sensor pair's"):
+        conditions_of("hdr", "arm", "ideal8")
+
+
+def test_each_condition_runs_its_own_sensor_pair_whatever_the_topology_says(tmp_path):
+    """A condition sets the camera's sensor (and, for an event row, the emulator's preset),
+    so the 8-bit benchmark's conditions still run the ideal 8-bit pair on topologies that
+    default to the physical one, and the physical conditions the physical pair."""
+    from sebvs.eval.run import EvalPlan, Run
+    from sebvs.runtime.topology import load_topology
+    plan = EvalPlan(task="nav", modalities=["rgb+event", "rgb"], conditions=["nominal", "hdr"],
+                    episodes=1, out=tmp_path)
+    plan.validate()
+    for cond, camera, emulator in (("nominal", "ideal8", "paper"),
+                                   ("hdr", "physical", "physical")):
+        for extra in ([], ['camera.sensor="physical"'], ['camera.sensor="ideal8"']):
+            topo = load_topology(plan.policy_topology, extra)
+            topo_path, sets = plan.overrides(Run(cond, "indoor", "rgb+event"))
+            topo = load_topology(topo_path, extra + sets)
+            assert topo.actors["camera"].params["sensor"] == camera, (cond, extra)
+            assert topo.actors["emulator"].params["preset"] == emulator, (cond, extra)
+        topo = load_topology(*plan.overrides(Run(cond, "indoor", "rgb")))
+        assert topo.actors["camera"].params["sensor"] == camera
+        assert topo.actors["emulator"].pruned            # an RGB row runs no event sensor
+
+
+def test_the_shipped_topologies_and_checkpoints_are_the_physical_pair():
+    from sebvs.policy.checkpoint import read_config
+    from sebvs.runtime.topology import load_topology
+    from sebvs.sensors.pairs import checkpoint_dir, topology_overrides
+    root = Path(__file__).resolve().parents[1]
+    for name in ("nav_policy", "arm_policy", "nav_record", "arm_record"):
+        topo = load_topology(root / "topologies" / f"{name}.toml")
+        assert topo.actors["camera"].params["sensor"] == "physical", name
+        assert topo.actors["emulator"].params["preset"] == "physical", name
+        old = load_topology(root / "topologies" / f"{name}.toml",
+                            topology_overrides("ideal8")[:2])
+        assert old.actors["camera"].params["sensor"] == "ideal8"
+        assert old.actors["emulator"].params["preset"] == "paper"
+    policy = load_topology(root / "topologies" / "nav_policy.toml", topology_overrides("ideal8"))
+    assert policy.actors["policy"].params["directory"] == "checkpoints/ideal8"
+    # the plan's four policies of the physical pair; the 8-bit benchmark's three beside them
+    shipped = {pair: {pt.name for pt in (root / checkpoint_dir(pair)).glob("nav-*.pt")}
+               for pair in ("physical", "ideal8")}
+    assert shipped == {"physical": {"nav-rgb.pt", "nav-event.pt", "nav-rgb+event.pt",
+                                    "nav-rgb+diff.pt"},
+                       "ideal8": {"nav-rgb.pt", "nav-event.pt", "nav-rgb+event.pt"}}
+    for pt in (root / checkpoint_dir("physical")).glob("nav-*.pt"):
+        assert read_config(pt)["dataset"]["path"].endswith("study_nav10"), pt
 
 
 def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_path):

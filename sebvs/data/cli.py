@@ -73,6 +73,7 @@ def add_fanout_arguments(parser, what: str) -> None:
 
 
 def register(sub) -> None:
+    from ..sensors.pairs import SENSORS
     d = sub.add_parser("data", help="dataset tools: check, stats, compare, export",
                        description="Inspect recorded datasets (one HDF5 file per episode "
                                    "plus index.json).")
@@ -144,6 +145,10 @@ def register(sub) -> None:
     r.add_argument("topology", help="topology TOML file with a recorder actor")
     r.add_argument("--episodes", type=int, required=True, metavar="N")
     r.add_argument("--out", required=True, metavar="DIR", help="dataset directory")
+    r.add_argument("--sensor", choices=SENSORS, default=None,
+                   help="record through this sensor pair: physical (the shipped topologies' "
+                        "own) or ideal8 (the 8-bit benchmark: camera.sensor=\"ideal8\" and "
+                        "the emulator's \"paper\" preset); --set lines come after it")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="override a parameter (value read as TOML; repeatable)")
     r.add_argument("--timeout", type=float, default=None, metavar="SECONDS",

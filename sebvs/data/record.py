@@ -101,9 +101,12 @@ class Progress:
 def cmd_record(args) -> int:
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
+    from sebvs.sensors.pairs import camera_override, emulator_override
     from .index import DatasetIndex
     from .splits import check_recording_seed
 
+    if getattr(args, "sensor", None):   # the CLI's; callers building their own args may not
+        args.set = [camera_override(args.sensor), emulator_override(args.sensor), *args.set]
     name = find_recorder(load_topology(args.topology, args.set))
     out = Path(args.out)
     overrides = [*args.set, f"{name}.out={json.dumps(str(out))}",

@@ -7,29 +7,50 @@ import sys
 from pathlib import Path
 
 
-def conditions_of(text: str, task: str) -> list[str]:
-    """--conditions as a list: comma-separated names and groups, "all" for the task's six
-    conditions of the 8-bit benchmark, "physical" for its physical ones (light in physical
-    units, for a camera.sensor="physical"); names are checked later by EvalPlan.validate,
-    a name given twice runs once."""
-    from .run import TASKS
-    groups = {"all": TASKS[task].conditions, "physical": TASKS[task].physical}
+DEFAULT_CONDITION = {"physical": "nominal_physical", "ideal8": "nominal"}
+
+
+def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list[str]:
+    """--conditions as a list: comma-separated names and groups; "all" for every condition
+    of the sensor pair (physical: light in physical units; ideal8: the 8-bit benchmark's
+    six), "physical" and "ideal8" for either pair's; None: the pair's nominal one. A name
+    given twice runs once. ValueError for a condition of the other pair (each condition
+    sets its own camera sensor: one evaluation, one pair, one set of checkpoints); unknown
+    names are left to EvalPlan.validate."""
+    from .run import TASKS, condition_sensor
+    spec = TASKS[task]
+    groups = {"physical": list(spec.physical), "ideal8": list(spec.conditions)}
+    groups["all"] = groups[sensor]
     out: list[str] = []
-    for name in (c.strip() for c in text.split(",")):
+    for name in (c.strip() for c in (text or DEFAULT_CONDITION[sensor]).split(",")):
         for c in groups.get(name, [name] if name else []):
             if c not in out:
                 out.append(c)
+    other = [c for c in out if c in spec.known_conditions
+             and condition_sensor(task, c) != sensor]
+    if other:
+        raise ValueError(f"condition {other[0]!r} is the {condition_sensor(task, other[0])} "
+                         f"sensor pair's, this evaluation runs --sensor {sensor} (its "
+                         f"conditions: {', '.join(groups[sensor])}); give --sensor "
+                         f"{condition_sensor(task, other[0])} to run it with the "
+                         f"checkpoints trained on that pair")
     return out
 
 
 def _cmd_eval(args) -> int:
+    from sebvs.sensors.pairs import checkpoint_dir
     from .run import TASKS, EvalPlan, evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
+    try:
+        conditions = conditions_of(args.conditions, args.task, args.sensor)
+    except ValueError as exc:
+        print(f"sebvs eval: {exc}", file=sys.stderr)
+        return 2
     plan = EvalPlan(task=args.task, modalities=[m for m in args.modalities.split(",") if m],
-                    conditions=conditions_of(args.conditions, args.task),
-                    scenarios=scenarios,
+                    conditions=conditions, scenarios=scenarios,
                     episodes=args.episodes, out=Path(args.out), clock=args.clock,
-                    split=args.split, seed=args.seed, checkpoints=args.checkpoints,
+                    split=args.split, seed=args.seed,
+                    checkpoints=args.checkpoints or checkpoint_dir(args.sensor),
                     expert=not args.no_expert,
                     baseline=not args.no_baseline,
                     extra=args.set, control_hz=args.control_hz,
@@ -66,6 +87,7 @@ def _check_checkpoints(plan) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     from sebvs.data.cli import add_fanout_arguments
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
+    from sebvs.sensors.pairs import DEFAULT_SENSOR, SENSORS
     from .run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS,
                       NAV_PHYSICAL_CONDITIONS, NAV_SCENARIOS)
     e = sub.add_parser(
@@ -86,20 +108,27 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(needs <task>-rgb+diff.pt)")
     e.add_argument("--episodes", type=int, default=10,
                    help="episodes per modality, condition and scenario")
-    e.add_argument("--conditions", default="nominal",
-                   help=f"comma-separated names or groups (default: nominal): all = the 8-bit "
-                        f"benchmark's (nav: {', '.join(NAV_CONDITIONS)}; arm: "
-                        f"{', '.join(ARM_CONDITIONS)}); physical = light in physical units, "
-                        f"for camera.sensor=\"physical\" (nav: "
-                        f"{', '.join(NAV_PHYSICAL_CONDITIONS)}; arm: "
-                        f"{', '.join(ARM_PHYSICAL_CONDITIONS)}; docs/sim.md)")
+    e.add_argument("--sensor", choices=SENSORS, default=DEFAULT_SENSOR,
+                   help="the sensor pair: physical (default; the frame camera and the event "
+                        "sensor on the scene's linear light, docs/sensors.md) or ideal8 (the "
+                        "8-bit benchmark before it, docs/results_history.md); it picks the "
+                        "conditions and the default checkpoints (checkpoints/ or "
+                        "checkpoints/ideal8/)")
+    e.add_argument("--conditions", default=None,
+                   help=f"comma-separated names or groups of the --sensor pair (default: its "
+                        f"nominal); all = every one of the pair's. physical: light in physical "
+                        f"units (nav: {', '.join(NAV_PHYSICAL_CONDITIONS)}; arm: "
+                        f"{', '.join(ARM_PHYSICAL_CONDITIONS)}; docs/sim.md); ideal8: the "
+                        f"8-bit benchmark's (nav: {', '.join(NAV_CONDITIONS)}; arm: "
+                        f"{', '.join(ARM_CONDITIONS)})")
     e.add_argument("--scenarios", default="",
                    help=f"comma-separated; nav: {', '.join(NAV_SCENARIOS)} (the scene "
                         f"variant); arm: {', '.join(ARM_SCENARIOS)} (default: all of the task's)")
     e.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
                    help="realtime: the policy's latency affects control, as on a robot")
-    e.add_argument("--checkpoints", default="checkpoints",
-                   help="directory with <task>-<modality>.pt checkpoints")
+    e.add_argument("--checkpoints", default=None,
+                   help="directory with <task>-<modality>.pt checkpoints (default: the "
+                        "shipped ones of the --sensor pair)")
     e.add_argument("--split", choices=EVAL_SPLITS, default=None,
                    help=f"topology seeds of the episodes: dev ({SPLITS['dev']}, the default, "
                         f"to evaluate and iterate on) or test ({SPLITS['test']}, held out: no "

@@ -45,34 +45,39 @@ from ..policy.inputs import CONTROL_MODALITIES, MODALITY_INPUTS
 from ..policy.inputs import MODALITIES as PAPER_MODALITIES
 from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
+from ..sensors.pairs import camera_override, emulator_override
 from .report import plot_success, render_report
 
 ROOT = Path(__file__).resolve().parents[2]
 TOPOLOGIES = ROOT / "topologies"
 
-# condition -> topology overrides (scene settings; see sebvs/sim/nav.py and arm.py)
+# condition -> topology overrides: the scene's settings (sebvs/sim/nav.py and arm.py) and
+# the camera's sensor, so that a condition runs the same whatever the topology's default.
+# The 8-bit benchmark's conditions (the paper's, and docs/results_history.md): light in the
+# render's 8-bit terms, for the ideal 8-bit sensor pair.
+IDEAL8 = camera_override("ideal8")
 NAV_CONDITIONS: dict[str, list[str]] = {
-    "nominal": [],
-    "fast": ['sim.config.target_speed="fast"'],
-    "low_light": ['sim.config.lighting="low"'],
-    "flicker": ['sim.config.lighting="flicker"'],
-    "blur": ["sim.config.rgb_blur=8"],
+    "nominal": [IDEAL8],
+    "fast": ['sim.config.target_speed="fast"', IDEAL8],
+    "low_light": ['sim.config.lighting="low"', IDEAL8],
+    "flicker": ['sim.config.lighting="flicker"', IDEAL8],
+    "blur": ["sim.config.rgb_blur=8", IDEAL8],
     # the hardest pairing for a frame camera: fast motion under a flickering light
-    "fast_flicker": ['sim.config.target_speed="fast"', 'sim.config.lighting="flicker"'],
+    "fast_flicker": ['sim.config.target_speed="fast"', 'sim.config.lighting="flicker"', IDEAL8],
 }
 ARM_CONDITIONS: dict[str, list[str]] = {
-    "nominal": [],                                          # static conveyor
-    "moving": ['sim.config.conveyor="moving"'],             # 8 cm/s
-    "fast": ['sim.config.conveyor="moving"', "sim.config.belt_speed=0.25"],
-    "low_light": ['sim.config.lighting="low"'],
-    "flicker": ['sim.config.lighting="flicker"'],
-    "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8"],
+    "nominal": [IDEAL8],                                          # static conveyor
+    "moving": ['sim.config.conveyor="moving"', IDEAL8],           # 8 cm/s
+    "fast": ['sim.config.conveyor="moving"', "sim.config.belt_speed=0.25", IDEAL8],
+    "low_light": ['sim.config.lighting="low"', IDEAL8],
+    "flicker": ['sim.config.lighting="flicker"', IDEAL8],
+    "blur": ['sim.config.conveyor="moving"', "sim.config.rgb_blur=8", IDEAL8],
 }
 # The physical conditions: light, flicker and motion as physical quantities (the scenes'
 # photometry(), sebvs/sim/light.py; docs/sim.md, "Conditions in physical terms"), for
-# cameras that model a sensor on physical light (camera.sensor="physical"). Not part of
-# "all" (the six above are the 8-bit benchmark); `--conditions physical` runs them.
-PHYSICAL = 'camera.sensor="physical"'
+# cameras that model a sensor on physical light (camera.sensor="physical"): the default
+# sensor pair's conditions (`--conditions all` with `--sensor physical`).
+PHYSICAL = camera_override("physical")
 # mains flicker (twice the supply frequency) needs the renders at >= 1 kHz, else it aliases
 MAINS_RATES = ["sim.render_hz=1000.0", "camera.dvs_hz=1000.0"]
 NAV_PHYSICAL_CONDITIONS: dict[str, list[str]] = {
@@ -145,11 +150,17 @@ SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render
                    "episode_s")
 
 
+def condition_sensor(task: str, condition: str) -> str:
+    """The sensor pair a condition is defined for: "physical" or "ideal8"."""
+    return "physical" if condition in TASKS[task].physical else "ideal8"
+
+
 def event_sensor_overrides(task: str, condition: str) -> list[str]:
     """The event sensor a condition asks for: under the physical conditions the emulator's
     "physical" preset, the event sensor's own physics on linear light (slow and noisy at
-    dusk). The evaluation's event rows and the Gymnasium environments (sebvs.envs)."""
-    return ['emulator.preset="physical"'] if condition in TASKS[task].physical else []
+    dusk); under the 8-bit benchmark's the paper's. The evaluation's event rows and the
+    Gymnasium environments (sebvs.envs)."""
+    return [emulator_override(condition_sensor(task, condition))]
 
 
 @dataclass(frozen=True)

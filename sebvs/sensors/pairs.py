@@ -1,0 +1,45 @@
+"""The two sensor pairs a topology can run, and the checkpoints trained on each.
+
+``physical`` (the default): the frame camera and the event sensor each model their chip
+on the scene's linear light (docs/sensors.md): ``camera.sensor="physical"`` and the
+emulator's "physical" preset. The checkpoints in checkpoints/ were trained on it (the
+sensor study, docs/study_sensors_plan.md).
+
+``ideal8``: the benchmark before it, where both sensors read one ideal 8-bit render:
+``camera.sensor="ideal8"`` and the emulator's "paper" preset (the paper's v2e settings).
+Its checkpoints are in checkpoints/ideal8/, its results in docs/results_history.md.
+"""
+from __future__ import annotations
+
+SENSORS = ("physical", "ideal8")
+DEFAULT_SENSOR = "physical"
+_EMULATOR_PRESET = {"physical": "physical", "ideal8": "paper"}
+_CHECKPOINTS = {"physical": "checkpoints", "ideal8": "checkpoints/ideal8"}
+
+
+def check_sensor(name: str) -> str:
+    if name not in SENSORS:
+        raise ValueError(f"unknown sensor pair {name!r} (one of {', '.join(SENSORS)})")
+    return name
+
+
+def camera_override(name: str) -> str:
+    """The topology override that puts the camera on this pair's frame sensor."""
+    return f'camera.sensor="{check_sensor(name)}"'
+
+
+def emulator_override(name: str) -> str:
+    """The topology override that gives the event emulator this pair's preset."""
+    return f'emulator.preset="{_EMULATOR_PRESET[check_sensor(name)]}"'
+
+
+def checkpoint_dir(name: str) -> str:
+    """Where the shipped checkpoints trained on this pair are (relative to the repository)."""
+    return _CHECKPOINTS[check_sensor(name)]
+
+
+def topology_overrides(name: str) -> list[str]:
+    """Everything a closed-loop topology (camera, emulator, policy) needs to run this pair
+    with the checkpoints trained on it: `sebvs demo --sensor`."""
+    return [camera_override(name), emulator_override(name),
+            f'policy.directory="{checkpoint_dir(name)}"']
