@@ -16,7 +16,7 @@ from pathlib import Path
 from .runtime.profiler import ProfileCollector, format_loop_latency, format_report
 from .runtime.supervisor import RunFailed, Supervisor
 from .runtime.topology import load_topology
-from .sensors.pairs import SENSORS, topology_overrides
+from .sensor_pairs import SENSORS, topology_overrides
 
 
 def _format_metrics(records: list[dict]) -> str:

@@ -243,7 +243,7 @@ def test_each_condition_runs_its_own_sensor_pair_whatever_the_topology_says(tmp_
 def test_the_shipped_topologies_and_checkpoints_are_the_physical_pair():
     from sebvs.policy.checkpoint import read_config
     from sebvs.runtime.topology import load_topology
-    from sebvs.sensors.pairs import checkpoint_dir, topology_overrides
+    from sebvs.sensor_pairs import checkpoint_dir, topology_overrides
     root = Path(__file__).resolve().parents[1]
     for name in ("nav_policy", "arm_policy", "nav_record", "arm_record"):
         topo = load_topology(root / "topologies" / f"{name}.toml")

@@ -107,7 +107,8 @@ def test_eval_sets_the_accumulator_from_the_checkpoint(tmp_path):
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))
     mine = ['accumulator.representation="histogram"', "accumulator.bins=4",
             "accumulator.window_s=0.4", "camera.luma_scale=1.0"]   # a full-size sensor
-    assert sets[-5:] == mine + ["accumulator.window_s=0.2"]   # the user's --set comes last
+    # then the condition's event sensor (the 8-bit benchmark's), and the user's --set last
+    assert sets[-6:] == mine + ['emulator.preset="paper"', "accumulator.window_s=0.2"]
     assert plan.event_frame_notes() == []
     # an older checkpoint (no event_frames) leaves the topology's accumulator as written
     (ck / "nav-event.json").write_text(json.dumps({"task": "nav", "modality": "event"}))

@@ -10,8 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # lower index = lower layer; a package may import only from strictly lower layers
 LAYERS = (
-    # the one-line hint for a missing optional extra
-    {"sebvs.extras"},
+    # the one-line hint for a missing optional extra; the two sensor pairs' overrides
+    {"sebvs.extras", "sebvs.sensor_pairs"},
     {"sebvs.runtime", "sebvs.dvs", "sebvs.sim", "sebvs.metrics"},
     # fan-out of episodes: runs topology shards through the runtime for data and eval
     {"sebvs.scale"},

@@ -25,8 +25,8 @@ SMALL_RECORD = ["--set", "sim.episode_s=0.5", "--set", "sim.config.width=32",
                 "--set", "sim.config.height=32", "--set", "accumulator.out_width=32",
                 "--set", "accumulator.out_height=32"]
 # the expert alone (no checkpoint to train), three one-second episodes
-SMALL_EVAL = ["eval", "--task", "nav", "--modalities=", "--no-baseline", "--conditions",
-              "nominal", "--scenarios", "indoor", "--episodes", "3",
+SMALL_EVAL = ["eval", "--task", "nav", "--modalities=", "--no-baseline", "--sensor", "ideal8",
+              "--conditions", "nominal", "--scenarios", "indoor", "--episodes", "3",
               "--set", "sim.episode_s=1.0"]
 
 

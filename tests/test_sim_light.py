@@ -209,11 +209,12 @@ def test_physical_conditions_are_separate_from_the_benchmark_and_named():
                                             "flicker_100", "flicker_120", "fast_hdr"}
     assert set(ARM_PHYSICAL_CONDITIONS) == {"nominal_physical", "fast_physical", "hdr",
                                             "dusk_moving", "fast_hdr"}
-    assert conditions_of("all", "nav") == list(NAV_CONDITIONS)
+    assert conditions_of("all", "nav", "ideal8") == list(NAV_CONDITIONS)
+    assert conditions_of("all", "nav") == list(NAV_PHYSICAL_CONDITIONS)
     assert conditions_of("physical", "nav") == list(NAV_PHYSICAL_CONDITIONS)
     assert conditions_of("physical", "arm") == list(ARM_PHYSICAL_CONDITIONS)
-    assert conditions_of("nominal,physical,hdr", "arm") == ["nominal",
-                                                            *ARM_PHYSICAL_CONDITIONS]
+    assert conditions_of("hdr,physical,hdr", "arm") == [
+        "hdr", *(c for c in ARM_PHYSICAL_CONDITIONS if c != "hdr")]
     for task, physical in (("nav", NAV_PHYSICAL_CONDITIONS), ("arm", ARM_PHYSICAL_CONDITIONS)):
         assert TASKS[task].physical is physical
         for name, sets in physical.items():

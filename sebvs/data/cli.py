@@ -73,7 +73,7 @@ def add_fanout_arguments(parser, what: str) -> None:
 
 
 def register(sub) -> None:
-    from ..sensors.pairs import SENSORS
+    from ..sensor_pairs import SENSORS
     d = sub.add_parser("data", help="dataset tools: check, stats, compare, export",
                        description="Inspect recorded datasets (one HDF5 file per episode "
                                    "plus index.json).")

@@ -101,7 +101,7 @@ class Progress:
 def cmd_record(args) -> int:
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
-    from sebvs.sensors.pairs import camera_override, emulator_override
+    from sebvs.sensor_pairs import camera_override, emulator_override
     from .index import DatasetIndex
     from .splits import check_recording_seed
 

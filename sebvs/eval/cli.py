@@ -38,7 +38,7 @@ def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list
 
 
 def _cmd_eval(args) -> int:
-    from sebvs.sensors.pairs import checkpoint_dir
+    from sebvs.sensor_pairs import checkpoint_dir
     from .run import TASKS, EvalPlan, evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     try:
@@ -87,7 +87,7 @@ def _check_checkpoints(plan) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     from sebvs.data.cli import add_fanout_arguments
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
-    from sebvs.sensors.pairs import DEFAULT_SENSOR, SENSORS
+    from sebvs.sensor_pairs import DEFAULT_SENSOR, SENSORS
     from .run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS,
                       NAV_PHYSICAL_CONDITIONS, NAV_SCENARIOS)
     e = sub.add_parser(

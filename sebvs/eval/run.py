@@ -45,7 +45,7 @@ from ..policy.inputs import CONTROL_MODALITIES, MODALITY_INPUTS
 from ..policy.inputs import MODALITIES as PAPER_MODALITIES
 from ..runtime.supervisor import RunFailed, Supervisor
 from ..runtime.topology import load_topology, parse_override
-from ..sensors.pairs import camera_override, emulator_override
+from ..sensor_pairs import camera_override, emulator_override
 from .report import plot_success, render_report
 
 ROOT = Path(__file__).resolve().parents[2]
