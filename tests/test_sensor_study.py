@@ -203,3 +203,10 @@ def test_run_finishes_each_cell_before_the_next_and_stops_at_a_failure(tmp_path,
         fail_at = first.label
         assert study.main(argv) == 1
         assert [s.label for s in ran] == [first.label]
+        # --only: the cells in the order given
+        ran.clear()
+        fail_at = None
+        later.done.unlink(missing_ok=True)
+        first.done.unlink(missing_ok=True)
+        assert study.main(argv + ["--only", "arm10,nav30"]) == 0
+        assert [study.step_cell(s) for s in ran] == ["arm10", "nav30"]
