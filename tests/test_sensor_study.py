@@ -109,8 +109,20 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):
+def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
+    """Study datasets of these frame counts under root (their index only), in place of
+    datasets/, which a checkout does not hold."""
+    monkeypatch.setattr(study, "dataset_dir", lambda task, rate: root / f"study_{task}{rate}")
+    for name, n in frames.items():
+        (root / name).mkdir()
+        (root / name / "index.json").write_text(json.dumps(
+            {"version": 1, "task": "nav", "episodes": [
+                {"file": f"episode_{i:04d}.h5", "frames": n // 4} for i in range(4)]}))
+
+
+def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
+        fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100})
         steps = [s for s in study.plan_steps(tmp_path, 2, {"nav10"}) if s.kind == "train"]
         log = tmp_path / "log.txt"
         log.write_text("\n".join([
@@ -134,14 +146,7 @@ def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path):
 
 def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
-        frames = {"study_nav10": 100, "study_nav30": 300}
-        monkeypatch.setattr(study, "dataset_dir",
-                            lambda task, rate: tmp_path / f"study_{task}{rate}")
-        for name, n in frames.items():
-            (tmp_path / name).mkdir()
-            (tmp_path / name / "index.json").write_text(json.dumps(
-                {"version": 1, "task": "nav", "episodes": [
-                    {"file": f"episode_{i:04d}.h5", "frames": n // 4} for i in range(4)]}))
+        fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100, "study_nav30": 300})
         steps = study.plan_steps(tmp_path, 2, {"nav10", "nav30"})
         train = [s for s in steps if s.kind == "train"]
         first = train[0]
@@ -203,3 +208,10 @@ def test_run_finishes_each_cell_before_the_next_and_stops_at_a_failure(tmp_path,
         fail_at = first.label
         assert study.main(argv) == 1
         assert [s.label for s in ran] == [first.label]
+        # --only: the cells in the order given
+        ran.clear()
+        fail_at = None
+        later.done.unlink(missing_ok=True)
+        first.done.unlink(missing_ok=True)
+        assert study.main(argv + ["--only", "arm10,nav30"]) == 0
+        assert [study.step_cell(s) for s in ran] == ["arm10", "nav30"]

@@ -349,7 +349,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", default="record,train,eval,read",
                     help="which kinds of step, comma-separated (default all, in order)")
     ap.add_argument("--only", default=None, metavar="CELLS",
-                    help="task and rate, comma-separated: nav10, nav30, arm10, arm30")
+                    help="task and rate, comma-separated: nav10, nav30, arm10, arm30; `run` "
+                         "takes them in the order given (default: all, in that order)")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
@@ -377,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
     print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
-    for cell in dict.fromkeys(step_cell(s) for s in steps):
+    order = args.only.split(",") if args.only else list(dict.fromkeys(map(step_cell, steps)))
+    for cell in dict.fromkeys(order):
         for kind in kinds:
             todo = [s for s in steps if step_cell(s) == cell and s.kind == kind
                     and not is_done(s)]
