@@ -18,7 +18,8 @@ shuffles episodes into blocks that fit the open set and the frames within each b
 `EpisodeFrames.preload()` reads the streams a modality needs into memory instead, as the
 files store them (uint8 frames): one read per episode and stream rather than an HDF5 chunk
 decode per item, the same values, and DataLoader workers forked after it share the pages.
-It reads whole episodes, or only the rows the items use where ``max_frames`` thinned them. `train.py` preloads when the frames fit a share of the available memory.
+It reads whole episodes, or only the rows the items use where ``max_frames`` thinned them.
+`train.py` preloads when the frames fit a share of the available memory.
 """
 from __future__ import annotations
 
