@@ -165,6 +165,9 @@ def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch)
         assert study.step_work(flicker0) == 6 * 2 * 20 * 10.0
         seed1 = next(s for s in evals if "seed 1 main" in s.label)
         assert study.step_work(seed1) == 3 * 8 * 20 * 10.0      # three modalities, no refs
+        arm0 = next(s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "eval")
+        # no --set of its length: arm_policy.toml's 2 s episodes, which sebvs eval plays
+        assert study.step_work(arm0) == 6 * 8 * 20 * 2.0
         main0.done.parent.mkdir(parents=True, exist_ok=True)
         main0.done.write_bytes(b"")
         text = study.status_text(evals, ["eval"], {main0.label: 1200.0})

@@ -129,12 +129,13 @@ def previous_rgb(ep: Episode, t: int) -> np.ndarray:
 
 
 class HeldRows:
-    """Some rows of a recorded [T, ...] stream, in memory: indexed by the row's frame number
-    like the full stream, for the frame numbers it holds (a KeyError for any other)."""
+    """Some rows (at least one) of a recorded [T, ...] stream, in memory: indexed by the
+    row's frame number like the full stream, for the frame numbers it holds (a KeyError for
+    any other)."""
 
     def __init__(self, rows: np.ndarray, data: np.ndarray):
         self.rows, self.data = rows, data
-        self.shape = (int(rows[-1]) + 1 if rows.size else 0, *data.shape[1:])
+        self.shape = (int(rows[-1]) + 1, *data.shape[1:])
         self.nbytes = data.nbytes
 
     def __getitem__(self, t: int) -> np.ndarray:
@@ -159,8 +160,7 @@ class CachedEpisode:
             if rows is None:
                 return stream[:]
             # a row at a time: one chunk each (h5py's list selection took 59 ms for 12 rows)
-            return HeldRows(rows, np.stack([stream[int(t)] for t in rows]) if rows.size
-                            else stream[:0])
+            return HeldRows(rows, np.stack([stream[int(t)] for t in rows]))
         self.rgb = read(ep.rgb) if {"rgb", "rgb_prev"} & set(streams) else None
         self.event_frame = read(ep.event_frame) if "events" in streams else None
         self.tick = ep.tick[:]
@@ -235,8 +235,10 @@ class EpisodeFrames:
         streams are read), else the sorted frame numbers its items read, with the one before
         each where the modality takes the previous frame."""
         prev = "rgb_prev" in MODALITY_INPUTS[self.modality]
-        for ei in np.unique(self.pairs[:, 0]):
-            ts = self.pairs[self.pairs[:, 0] == ei, 1]
+        # pairs run in episode order (built so, and max_frames' stride keeps it): one slice each
+        used, first, count = np.unique(self.pairs[:, 0], return_index=True, return_counts=True)
+        for ei, a, n in zip(used, first, count):
+            ts = self.pairs[a:a + n, 1]
             if ts.size == self.frame_counts[int(ei)]:
                 yield int(ei), None
                 continue

@@ -41,6 +41,7 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -274,9 +275,20 @@ def step_work(step: Step) -> float:
         rows += 0 if "--no-baseline" in argv else 1
         cells = (len(argv[argv.index("--conditions") + 1].split(","))
                  * len(argv[argv.index("--scenarios") + 1].split(",")))
-        episode_s = {"nav": 10.0, "arm": 2.0}[task]
-        return float(rows * cells * int(argv[argv.index("--episodes") + 1]) * episode_s)
+        return float(rows * cells * int(argv[argv.index("--episodes") + 1])
+                     * episode_seconds(task, argv))
     return 1.0
+
+
+def episode_seconds(task: str, argv: tuple[str, ...]) -> float:
+    """An evaluation's episode length: its last `--set sim.episode_s=`, else the policy
+    topology's, which `sebvs eval` runs."""
+    sets = [v.split("=", 1)[1] for k, v in zip(argv, argv[1:])
+            if k == "--set" and v.startswith("sim.episode_s=")]
+    if sets:
+        return float(sets[-1])
+    topology = ROOT / "topologies" / f"{task}_policy.toml"
+    return float(tomllib.loads(topology.read_text())["actors"]["sim"]["episode_s"])
 
 
 def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
@@ -289,9 +301,11 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
         words = step.label.split()
         return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
 
+    work = {s.label: step_work(s) for s in steps if s.kind in kinds}   # reads indexes once
+
     def rate(done: list[Step]) -> float | None:
-        per = sorted(took[d.label] / step_work(d) for d in done
-                     if d.label in took and step_work(d) > 0)
+        per = sorted(took[d.label] / work[d.label] for d in done
+                     if d.label in took and work[d.label] > 0)
         return per[len(per) // 2] if per else None
 
     lines, total, unknown = [], 0.0, 0
@@ -310,7 +324,7 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
             if per is None and kind == "train":
                 scaled = [d for d in done if d.label in took]
                 per, how = rate(scaled), f"scaled by frames from {len(scaled)} done trainings"
-            guess = per * step_work(s) if per is not None else None
+            guess = per * work[s.label] if per is not None else None
             if guess is None:
                 unknown += 1
             else:
