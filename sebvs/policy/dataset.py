@@ -227,7 +227,7 @@ class EpisodeFrames:
         per_frame = int(np.prod(ep.rgb.shape[1:])) if {"rgb", "rgb_prev"} & streams else 0
         if "events" in streams:
             per_frame += int(np.prod(ep.event_frame.shape[1:]))
-        return per_frame * sum(self.frame_counts[int(ei)] if rows is None else rows.size
+        return per_frame * sum(self.frame_counts[ei] if rows is None else rows.size
                                for ei, rows in self._rows_read())
 
     def _rows_read(self):
@@ -235,16 +235,20 @@ class EpisodeFrames:
         streams are read), else the sorted frame numbers its items read, with the one before
         each where the modality takes the previous frame."""
         prev = "rgb_prev" in MODALITY_INPUTS[self.modality]
-        # pairs run in episode order (built so, and max_frames' stride keeps it): one slice each
-        used, first, count = np.unique(self.pairs[:, 0], return_index=True, return_counts=True)
-        for ei, a, n in zip(used, first, count):
-            ts = self.pairs[a:a + n, 1]
-            if ts.size == self.frame_counts[int(ei)]:
-                yield int(ei), None
+        for ei, ts in self._items_by_episode():
+            if ts.size == self.frame_counts[ei]:
+                yield ei, None
                 continue
             if prev:
                 ts = np.concatenate([ts, ts[ts > 0] - 1])
-            yield int(ei), np.unique(ts)
+            yield ei, np.unique(ts)
+
+    def _items_by_episode(self):
+        """(episode, its items' frame numbers) per used episode, in episode order. The pairs
+        run in episode order (built so, and max_frames' stride keeps it): one slice each."""
+        used, first, count = np.unique(self.pairs[:, 0], return_index=True, return_counts=True)
+        for ei, a, n in zip(used, first, count):
+            yield int(ei), self.pairs[a:a + n, 1]
 
     def preload(self, progress: bool = False) -> int:
         """Read the used rows of every used episode's streams into memory (CachedEpisode);
@@ -302,10 +306,8 @@ class EpisodeFrames:
 
     def targets(self) -> np.ndarray:
         """Every item's target, [N, 2] or [N, 6] float32, without reading any image."""
-        out = []
-        for ei in np.unique(self.pairs[:, 0]):
-            ts = self.pairs[self.pairs[:, 0] == ei, 1]
-            out.append(np.asarray(self._episode(int(ei)).target[:], np.float32)[ts])
+        out = [np.asarray(self._episode(ei).target[:], np.float32)[ts]
+               for ei, ts in self._items_by_episode()]
         return np.concatenate(out) if out else np.zeros((0, 6), np.float32)
 
     def episodes_of(self) -> set[str]:
