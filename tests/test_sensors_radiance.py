@@ -220,6 +220,49 @@ def test_physical_camera_emits_modelled_frames_and_linear_luminance():
     assert not np.array_equal(rgb[-1][0]["rgb"], ideal[-1][0]["rgb"])
 
 
+@pytest.mark.parametrize("states_hz, held_s, left_for_tick", [(1000.0, None, 0),
+                                                              (100.0, 0.012, 1)])
+def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
+                                                             left_for_tick, monkeypatch):
+    """The next frame's sub-frames are rendered as the states that fix their poses arrive.
+    States every 1 ms fix the whole exposure (it ends 5 ms before its tick), so the frame
+    is exposed before its tick, while the auto exposure ramps up at dusk; states every
+    10 ms leave the last of a 12 ms exposure's three sub-frames for the tick's own state.
+    Either way the frames and their meta are those of rendering it all at the tick."""
+    from actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    from sebvs.sensors.rig import SensorRig
+    states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64,
+                         "height": 64}, dvs_hz=states_hz)
+    held = {} if held_s is None else {"ae_start_exposure_s": held_s, "exposure_max_s": held_s}
+
+    def frames():
+        core = CameraCore(Camera.Params(sensor="physical", dvs_hz=states_hz,
+                                        frame_overrides=held), {"rgb", "luma"})
+        out, tick_work = [], []
+        for arrays, meta, *_ in states:
+            before = core.rig.subframes_rendered if core.rig else 0
+            out += [(o, a, m) for o, a, m in core.sample(arrays, meta) if o == "rgb"]
+            if meta["control"]:
+                tick_work.append(core.rig.subframes_rendered - before)
+        core.close()
+        return out, tick_work, dict(core.counts)
+
+    ahead, ahead_work, counts = frames()
+    monkeypatch.setattr(SensorRig, "ahead", lambda self, *a, **k: 0)
+    at_tick, tick_work, counts_at_tick = frames()
+    assert len(ahead) == len(at_tick) == 4
+    for (_, a, m), (_, b, n) in zip(ahead, at_tick):
+        assert np.array_equal(a["rgb"], b["rgb"]) and m == n
+    exposures = [m["exposure_s"] for _, _, m in ahead]
+    assert (len(set(exposures)) > 1) == (held_s is None), exposures     # ramping or held
+    assert counts["subframes"] == counts_at_tick["subframes"] == sum(tick_work)
+    assert counts["subframes_ahead"] == sum(tick_work[1:]) - sum(ahead_work[1:]) > 0
+    assert counts["subframes_discarded"] == 0
+    # the first frame has no tick before it to say when it comes
+    assert ahead_work[1:] == [left_for_tick] * 3
+
+
 def test_nav_cells_at_the_sensor_separate_nominal_from_hdr():
     """The benchmark discriminates without training: the colour detector on the modelled
     frames finds the target in the nominal cell and loses it against the HDR windows,

@@ -90,6 +90,17 @@ def test_state_stream_meta_ticks_and_truth():
     assert eps[0]["seed"] == episode_seed(7, 0) and eps[1]["reason"] == "time_limit"
 
 
+@pytest.mark.parametrize("integrator", ["discrete", "rk4", "implicitfast", "euler"])
+def test_a_tick_says_the_next_ticks_time_bit_for_bit(integrator):
+    """What a frame camera renders ahead with (sebvs/sensors/rig.py): equal, not close."""
+    sim, node = make_sim(integrator=integrator)
+    asyncio.run(sim.run())
+    ticks = [m for o, _, m, *_ in node.emitted if o == "state" and m["control"]]
+    assert len(ticks) == 11 and "t_next_control" not in ticks[-1]   # the time is up
+    for tick, following in zip(ticks, ticks[1:]):
+        assert tick["t_next_control"] == following["t_ep"]
+
+
 def test_bad_commands_rejected_last_good_kept():
     sim, node = make_sim(clock="realtime", connected=frozenset({"action"}))
 

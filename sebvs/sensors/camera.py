@@ -99,6 +99,11 @@ class CameraCore:
             # exposure (<= 0.1 s) plus readout, and one state before them
             self.states = StateHistory(self.frame_params.exposure_max_s
                                        + self.frame_params.readout_s + 0.05)
+            # the next frame's exposure end, once a tick has said when the next tick
+            # comes (frames on control ticks only): its sub-frames are rendered as the
+            # states that fix their poses arrive, not all at that tick
+            self.next_t_end: float | None = None
+            self.counts.update(subframes_ahead=0, subframes_discarded=0)
 
     def _build_rig(self, frame_rate_hz: float) -> None:
         from .rig import SensorRig
@@ -180,6 +185,7 @@ class CameraCore:
                 self.sampler.reset()
             if self.physical:
                 self.states.clear()
+                self.next_t_end = None
                 self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
         # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
         # that flag to the accumulator, which closes its windows on it.
@@ -203,6 +209,10 @@ class CameraCore:
         want_ideal = "ideal" in self.wanted and rgb_due
         if self.physical and "rgb" in self.wanted:
             self.states.add(t_ep, state)
+            if not want_rgb and self.next_t_end is not None:
+                self.rig.ahead(self.states, self.pose, self.data, self.cam, self.next_t_end,
+                               self._light_scale)
+                self._count_subframes()
         # the blur history serves the ideal render (rgb too, on the 8-bit sensor; the
         # physical camera integrates its own sub-frames from self.states)
         if self.blur > 1 and self.wanted & ({"ideal"} if self.physical else {"rgb", "ideal"}):
@@ -213,6 +223,8 @@ class CameraCore:
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
         if want_rgb and self.physical:
             out.append(self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc))
+            t_next = meta.get("t_next_control") if p.rgb_hz <= 0 else None
+            self.next_t_end = None if t_next is None else t_next - self.rig.readout_s
         self.pose(state)
         r = self.renderer
         r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
@@ -313,11 +325,17 @@ class CameraCore:
         frame = self.rig.frame(self.states, self.pose, self.data, self.cam, t_end,
                                self._light_scale)
         arrays["rgb"][...] = frame.image
-        self.counts["subframes"] = self.rig.subframes_rendered
+        self._count_subframes()
         self.counts["rgb"] += 1
         return ("rgb", arrays, {
             **meta, "exposure_s": frame.exposure_s, "gain_db": frame.gain_db,
             "t_exposure_end": frame.t_end_s, "saturated": frame.saturated_fraction})
+
+    def _count_subframes(self) -> None:
+        rig = self.rig
+        self.counts.update(subframes=rig.subframes_rendered,
+                           subframes_ahead=rig.subframes_ahead,
+                           subframes_discarded=rig.subframes_discarded)
 
     def _remember(self, state: dict) -> None:
         """Keep a copy of this state for the blur (its arrays may be views of the sender's

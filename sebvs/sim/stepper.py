@@ -136,11 +136,19 @@ class SceneStepper:
 
     def sample_meta(self, k: int) -> dict:
         """The state sample's meta at the current step of episode `k`: episode, control,
-        t_ep, and truth on a control tick; scene, config, control_hz on the first."""
+        t_ep; on a control tick truth and, unless the time is up, t_next_control (the next
+        tick's t_ep bit for bit: a frame camera renders that frame's exposure ahead at the
+        very times it will have); scene, config, control_hz on the first."""
         control = self.control_due
         meta = {"episode": k, "control": control, "t_ep": self.data.time}
         if control:
             meta["truth"] = self.scene.truth(self.model, self.data)
+            if not self.at_end:
+                # mj_step adds the timestep to data.time once a step, whatever the integrator
+                t, dt = self.data.time, self.model.opt.timestep
+                for _ in range(self.steps_per_control):
+                    t += dt
+                meta["t_next_control"] = t
         if self.step == 0:
             meta["scene"], meta["config"] = self.scene_name, self.config
             meta["control_hz"] = self.control_hz
