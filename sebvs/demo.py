@@ -97,11 +97,23 @@ def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_afte
     return code
 
 
+def load_for_swap(swap_to: str | None, sets: list[str]) -> list[str]:
+    """The --set line that loads the checkpoint of the modality swapped to where the policy
+    would not load it (by default it loads the paper's three), unless the user's --set
+    lines list the policy's modalities themselves; else []."""
+    from .policy.inputs import MODALITIES
+    if swap_to is None or swap_to in MODALITIES or any(
+            o.split("=", 1)[0].strip() == "policy.modalities" for o in sets):
+        return []
+    return [f"policy.modalities={json.dumps([*MODALITIES, swap_to])}"]
+
+
 def _cmd_demo(args) -> int:
     if args.swap_to and args.swap_after is None:
         print("sebvs demo: --swap-to needs --swap-after TICKS", file=sys.stderr)
         return 2
     overrides = ([] if args.sensor is None else topology_overrides(args.sensor)) + args.set
+    overrides += load_for_swap(args.swap_to, args.set)
     return run_demo(args.topology, overrides, args.swap_to, args.swap_after or 0,
                     args.profile_json, args.clock)
 
@@ -120,7 +132,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "it: camera.sensor=\"ideal8\", the emulator's \"paper\" preset, "
                         "checkpoints/ideal8/); --set lines come after it")
     d.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE")
-    d.add_argument("--swap-to", choices=["rgb", "event", "rgb+event"], default=None)
+    d.add_argument("--swap-to", choices=["rgb", "event", "rgb+event", "rgb+diff"], default=None,
+                   help="the modality to swap the policy to; its checkpoint is loaded "
+                        "beside the paper's three (rgb+diff, the frame-difference control, "
+                        "is not loaded otherwise)")
     d.add_argument("--swap-after", type=int, default=None, metavar="TICKS",
                    help="swap once the policy has acted this many control ticks")
     d.add_argument("--clock", choices=["realtime", "lockstep"], default="realtime",

@@ -265,6 +265,19 @@ def test_the_shipped_topologies_and_checkpoints_are_the_physical_pair():
         assert read_config(pt)["dataset"]["path"].endswith("study_nav10"), pt
 
 
+def test_a_demo_swap_to_the_frame_difference_loads_its_checkpoint():
+    from sebvs.demo import load_for_swap
+    from sebvs.runtime.topology import load_topology
+    root = Path(__file__).resolve().parents[1]
+    sets = load_for_swap("rgb+diff", [])
+    topo = load_topology(root / "topologies" / "nav_policy.toml", sets)
+    assert topo.actors["policy"].params["modalities"] == ["rgb", "event", "rgb+event",
+                                                          "rgb+diff"]
+    assert load_for_swap("event", []) == load_for_swap(None, []) == []
+    # the user's own list stands
+    assert load_for_swap("rgb+diff", ['policy.modalities=["rgb", "rgb+diff"]']) == []
+
+
 def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_path):
     from sebvs.eval.run import EvalPlan, Run
     from sebvs.runtime.topology import load_topology, parse_override
