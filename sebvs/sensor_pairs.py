@@ -15,6 +15,9 @@ SENSORS = ("physical", "ideal8")
 DEFAULT_SENSOR = "physical"
 _EMULATOR_PRESET = {"physical": "physical", "ideal8": "paper"}
 _CHECKPOINTS = {"physical": "checkpoints", "ideal8": "checkpoints/ideal8"}
+# each pair's nominal condition of `sebvs eval` (sebvs/eval/run.py): what `sebvs eval
+# --sensor` and the Gymnasium environments run when no condition is named
+DEFAULT_CONDITION = {"physical": "nominal_physical", "ideal8": "nominal"}
 
 
 def check_sensor(name: str) -> str:

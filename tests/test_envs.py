@@ -136,8 +136,24 @@ def test_the_expert_through_the_env_scores_what_sebvs_eval_scores(tmp_path):
     assert arm["env_outcomes"] == arm["eval_outcomes"]
 
 
+@pytest.mark.filterwarnings("ignore:.*is out of date")     # Gymnasium's word on a v0
+@pytest.mark.parametrize("task", ["nav", "arm"])
+def test_v1_runs_the_physical_pair_and_v0_the_8_bit_benchmark_unless_told(task):
+    from sebvs.envs import ENV_IDS_IDEAL8
+    made = {}
+    for name, env_id, kwargs in (("v1", ENV_IDS[task], {}), ("v0", ENV_IDS_IDEAL8[task], {}),
+                                 ("v0 dusk", ENV_IDS_IDEAL8[task],
+                                  {"condition": "dusk_moving" if task == "arm" else "dusk"})):
+        env = gym.make(env_id, **SMALL, **kwargs).unwrapped
+        made[name] = (env.condition, env.camera_params.sensor, env.emulator_params.preset)
+        env.close()
+    assert made["v1"] == ("nominal_physical", "physical", "physical")
+    assert made["v0"] == ("nominal", "ideal8", "paper")
+    assert made["v0 dusk"][1:] == ("physical", "physical")
+
+
 def test_actions_are_clipped_and_bad_ones_refused_as_the_sim_does():
-    env = gym.make("SEBVS/ERPNav-v0", **SMALL)
+    env = gym.make(ENV_IDS["nav"], **SMALL)
     base = env.unwrapped
     env.reset(seed=1)
     cfg = base.sim.scene.config
@@ -150,7 +166,7 @@ def test_actions_are_clipped_and_bad_ones_refused_as_the_sim_does():
     assert info["rejected"] and info["command"].tolist() == [0.5, 0.25]
     np.testing.assert_array_equal(base.sim.data.ctrl, ctrl)
     env.close()
-    arm = gym.make("SEBVS/ERPArm-v0", **SMALL)
+    arm = gym.make(ENV_IDS["arm"], **SMALL)
     arm.reset(seed=1)
     arm.step(np.array([2.0, -2.0, 0.3, 4.0, 0.0, 0.0], np.float32))
     pose = arm.unwrapped.sim.scene.command_pose
@@ -160,7 +176,7 @@ def test_actions_are_clipped_and_bad_ones_refused_as_the_sim_does():
 
 
 def test_reset_continues_the_run_and_a_seed_restarts_it():
-    env = gym.make("SEBVS/ERPNav-v0", **SMALL)
+    env = gym.make(ENV_IDS["nav"], **SMALL)
     seeds = []
     _, info = env.reset(seed=4)
     seeds.append(info["seed"])
@@ -178,8 +194,8 @@ def test_reset_continues_the_run_and_a_seed_restarts_it():
 
 def test_the_expert_needs_the_privileged_view_and_grasps_through_the_arm_env():
     with pytest.raises(ValueError, match="privileged=True"):
-        ExpertPolicy(gym.make("SEBVS/ERPArm-v0", **SMALL))
-    env = gym.make("SEBVS/ERPArm-v0", privileged=True)
+        ExpertPolicy(gym.make(ENV_IDS["arm"], **SMALL))
+    env = gym.make(ENV_IDS["arm"], privileged=True)
     expert = ExpertPolicy(env)
     obs, info = env.reset(seed=0)
     assert {"ideal", "depth", "state"} <= set(info)
@@ -196,9 +212,9 @@ def test_the_expert_needs_the_privileged_view_and_grasps_through_the_arm_env():
 def test_an_async_vector_of_two_envs_steps_and_resets_itself():
     # spawned workers: a worker forked from a process that has rendered (this one, in the
     # tests before) inherits its GL state and hangs; "module:id" registers the ids there
+    nav_id = "sebvs.envs:" + ENV_IDS["nav"]
     envs = gym.vector.AsyncVectorEnv(
-        [lambda: gym.make("sebvs.envs:SEBVS/ERPNav-v0", width=48, height=48,
-                          episode_s=0.3)] * 2, context="spawn")
+        [lambda: gym.make(nav_id, width=48, height=48, episode_s=0.3)] * 2, context="spawn")
     try:
         obs, infos = envs.reset(seed=[1, 2])
         assert obs["rgb"].shape == (2, 48, 48, 3) and obs["events"].shape == (2, 2, 48, 48)

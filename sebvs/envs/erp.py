@@ -23,11 +23,14 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from sebvs.sensor_pairs import DEFAULT_CONDITION, DEFAULT_SENSOR
+
 OBS_KEYS = ("rgb", "events", "proprio")
 TASK_SCENARIO = {"nav": "indoor", "arm": "single"}
 
 
-def env_settings(task: str, condition: str = "nominal", scenario: str | None = None, *,
+def env_settings(task: str, condition: str = DEFAULT_CONDITION[DEFAULT_SENSOR],
+                 scenario: str | None = None, *,
                  sensor: str | None = None, emulator: str | None = None,
                  width: int | None = None, height: int | None = None,
                  control_hz: float | None = None, episode_s: float | None = None,
@@ -97,7 +100,8 @@ class ERPEnv(gymnasium.Env):
 
     Keyword arguments (gymnasium.make passes them on):
       scenario     nav "indoor" | "outdoor"; arm "single" | "multi" (three cubes)
-      condition    a condition of `sebvs eval` (sebvs/eval/run.py), the physical ones too:
+      condition    a condition of `sebvs eval` (sebvs/eval/run.py; default: the default
+                   sensor pair's nominal_physical, the 8-bit pair's is "nominal"):
                    nav nominal, fast, low_light, flicker, blur, fast_flicker,
                    nominal_physical, hdr, dusk, dusk_fast, flicker_100, flicker_120,
                    fast_hdr; arm nominal, moving, fast, low_light, flicker, blur,
@@ -121,7 +125,8 @@ class ERPEnv(gymnasium.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
     task = ""
 
-    def __init__(self, *, scenario: str | None = None, condition: str = "nominal",
+    def __init__(self, *, scenario: str | None = None,
+                 condition: str = DEFAULT_CONDITION[DEFAULT_SENSOR],
                  sensor: str | None = None, emulator: str | None = None,
                  width: int | None = None, height: int | None = None,
                  control_hz: float | None = None, episode_s: float | None = None,
@@ -372,7 +377,7 @@ class ERPEnv(gymnasium.Env):
 
 
 class ERPNavEnv(ERPEnv):
-    """SEBVS/ERPNav-v0: the four-wheel robot keeps the red cube in view (the paper's
+    """SEBVS/ERPNav-v1: the four-wheel robot keeps the red cube in view (the paper's
     ERPNav, sebvs/sim/nav.py).
 
     action    [v, w] in [-1, 1] (float32): forward speed and yaw rate as fractions of the
@@ -423,7 +428,7 @@ class ERPNavEnv(ERPEnv):
 
 
 class ERPArmEnv(ERPEnv):
-    """SEBVS/ERPArm-v0: the UR5 above the conveyor names a pre-grasp pose from its wrist
+    """SEBVS/ERPArm-v1: the UR5 above the conveyor names a pre-grasp pose from its wrist
     camera each tick; at the end of the episode the sim grasps the last pose (the paper's
     ERPArm, sebvs/sim/arm.py).
 

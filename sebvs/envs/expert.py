@@ -1,6 +1,6 @@
 """The expert of `sebvs eval`'s reference row, driving an environment (sebvs.envs).
 
-    env = gymnasium.make("SEBVS/ERPArm-v0", privileged=True)
+    env = gymnasium.make("SEBVS/ERPArm-v1", privileged=True)
     expert = ExpertPolicy(env)
     obs, info = env.reset(seed=3)
     while True:

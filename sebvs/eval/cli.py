@@ -6,8 +6,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
-
-DEFAULT_CONDITION = {"physical": "nominal_physical", "ideal8": "nominal"}
+from sebvs.sensor_pairs import DEFAULT_CONDITION
 
 
 def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list[str]:
