@@ -18,15 +18,18 @@ Outputs, each rendered only when some actor consumes it (self.consumed):
   ideal  {"rgb": (H, W, 3) uint8}: the ideal 8-bit render at the RGB times, whatever the
          sensor: the experts' privileged view.
 
-sensor "ideal8" (default, the benchmark the shipped checkpoints were trained on): rgb is
-the ideal render (blurred over rgb_blur sub-frames when the scene sets it) and luma its
+sensor "ideal8" (the parameter's default; the shipped topologies set "physical", and
+checkpoints/ideal8/ holds the policies trained on this one): rgb is the ideal render (blurred over rgb_blur sub-frames when the scene sets it) and luma its
 8-bit luma. sensor "physical" (sebvs.sensors.rig, docs/sensors.md): the scene's light in
 cd/m^2 (Scene.photometry) rendered beyond 8 bits; rgb is a modelled frame camera's image
 (EMVA 1288 terms: exposure and gain under auto exposure, shot, read and dark noise, full
 well, ADC, tone curve, motion blur integrated from sub-frames over the exposure; its
 exposure ends readout_s before the tick, meta exposure_s, gain_db, t_exposure_end), and
 luma carries the scene's luminance {"luma": (h, w) float32 cd/m^2, meta units "cd/m2"},
-which the emulator reads as linear light.
+which the emulator reads as linear light. Each output is emitted as soon as it is made;
+at a tick the physical frame comes last, so the luma reaches the event chain while the
+exposure is integrated, and the frame's sub-frames are rendered as the states that fix
+their poses arrive (sebvs.sensors.rig.SensorRig.ahead).
 H, W = scene.image_shape() (the scene config's height/width). Frames are rendered straight into the
 runtime's shared-memory slots (self.reserve). The rendering is sebvs.sensors.camera's
 CameraCore, which sebvs.envs runs in process too.

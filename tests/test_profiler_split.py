@@ -242,3 +242,30 @@ def test_loop_latency_leaves_the_warm_up_out_and_reads_the_targets(tmp_path):
     assert line.startswith(f"loop latency ({LOOP}): p50 2.1") and "met" in line
     assert line.endswith("(the target is for the realtime clock; this run was lockstep)")
     assert "not met" in format_loop_latency(dict(loop, p99_ms=20.0, met=False), "realtime")
+
+
+def test_loop_latency_counts_every_tick_whichever_input_completed_it(tmp_path):
+    """rgb+event on the physical pair: a tick's action carries the stamps of the input
+    that came last, the frame (camera > policy) or the events (through the accumulator),
+    so the loop is two paths and each tick is on one of them."""
+    from sebvs.runtime.profiler import format_loop_latency
+    col = collector(tmp_path, ("sim", "camera", "accumulator", "policy"))
+    ticks = [loop_tick(10_000_000 * k, k) for k in range(1, 41)]
+    for k, t in enumerate(ticks):
+        if k % 4 == 0:                      # a quarter completed by the events, 1 ms later
+            stamps = t["sim"][5]
+            via = ["accumulator", stamps[1][2] + 100 * US, stamps[1][2] + 200 * US]
+            t["sim"][5] = [*stamps[:2], via, stamps[2]]
+            t["sim"][6] += 1_000 * US
+            t["sim"][7] += 1_000 * US
+    for actor in ("sim", "policy", "camera"):
+        col.ingest(batch(actor, [t[actor] for t in ticks]))
+    loop = col.loop_latency(warmup_s=0.0)
+    col.close()
+    events = "sim > camera > accumulator > policy > sim"
+    assert loop["instances"] == 40 and loop["paths"] == {LOOP: 30, events: 10}
+    assert loop["chain"] == LOOP
+    assert loop["p50_ms"] == pytest.approx(2.125, abs=0.006)
+    assert loop["p99_ms"] == pytest.approx(3.125, abs=0.006)
+    assert format_loop_latency(loop, "realtime").startswith(
+        f"loop latency ({LOOP} and 1 more path): p50 2.1")

@@ -206,6 +206,9 @@ def test_physical_camera_emits_modelled_frames_and_linear_luminance():
     luma = [(a, m) for o, a, m, *_ in emitted if o == "luma"]
     ideal = [(a, m) for o, a, m, *_ in emitted if o == "ideal"]
     assert len(rgb) == len(ideal) == 4 and len(luma) == 31
+    # each output is emitted as it is made, the frame camera's image last: the luma is on
+    # its way to the event chain while the exposure is integrated
+    assert [o for o, a, m, *_ in emitted if m["control"]] == ["ideal", "luma", "rgb"] * 4
     for arrays, meta in rgb:
         assert arrays["rgb"].dtype == np.uint8 and arrays["rgb"].shape == (64, 64, 3)
         assert 0 < meta["exposure_s"] <= 0.1 and meta["t_exposure_end"] < meta["t_ep"]
@@ -242,7 +245,12 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
         out, tick_work = [], []
         for arrays, meta, *_ in states:
             before = core.rig.subframes_rendered if core.rig else 0
-            out += [(o, a, m) for o, a, m in core.sample(arrays, meta) if o == "rgb"]
+            made = core.counts["rgb"]
+            for o, a, m in core.sample(arrays, meta):
+                if o == "rgb":
+                    out.append((o, a, m))
+                elif meta["control"]:        # yielded before the frame is even made
+                    assert core.counts["rgb"] == made
             if meta["control"]:
                 tick_work.append(core.rig.subframes_rendered - before)
         core.close()

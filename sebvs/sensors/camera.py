@@ -8,7 +8,7 @@ are the same bit for bit. See actors/camera.py for the outputs and the two senso
 
     cam = CameraCore(params, wanted={"rgb", "luma"}, seed=camera_seed)
     for output, arrays, meta in cam.sample(state, state_meta, alloc):
-        ...                                  # alloc(output, {name: (shape, dtype)})
+        ...              # each as it is made; alloc(output, {name: (shape, dtype)})
     cam.close()
 
 `params` has the camera actor's Params fields (camera, rgb_hz, dvs_hz, luma_scale, sensor,
@@ -24,7 +24,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -161,17 +161,19 @@ class CameraCore:
         self.scene.kinematics(self.model, self.data)
 
     def sample(self, state: dict, meta: dict, alloc: Alloc = plain_alloc
-               ) -> list[tuple[str, dict, dict]]:
-        """One state sample of the sim (its arrays and meta) -> [(output, arrays, meta)] of
-        the frames due at it, in the order the camera actor emits them."""
-        out: list[tuple[str, dict, dict]] = []
+               ) -> Iterator[tuple[str, dict, dict]]:
+        """One state sample of the sim (its arrays and meta) -> (output, arrays, meta) of
+        each frame due at it, yielded as soon as it is made (the camera actor emits each
+        at once). The physical frame camera's image comes last: the event sensor's luma
+        and the privileged renders are on their way while the exposure is integrated.
+        Iterate to the end: the camera's state moves on as the outputs are made."""
         if "control_hz" in meta:
             self.control_hz = meta["control_hz"]
         if "config" in meta and (meta["scene"], meta["config"]) != self.key:
             self.build(meta["scene"], meta["config"])
         if self.renderer is None:
             self.counts["no_model"] += 1      # joined mid-episode: wait for the next start
-            return out
+            return
         ep, t_ep, control = meta.get("episode"), float(meta.get("t_ep", 0.0)), \
             bool(meta.get("control", False))
         p = self.params
@@ -219,12 +221,9 @@ class CameraCore:
             self._remember(state)
         if not (want_luma or want_rgb or want_ideal
                 or (rgb_due and self.wanted & {"depth", "seg"})):
-            return between
+            yield from between
+            return
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
-        if want_rgb and self.physical:
-            out.append(self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc))
-            t_next = meta.get("t_next_control") if p.rgb_hz <= 0 else None
-            self.next_t_end = None if t_next is None else t_next - self.rig.readout_s
         self.pose(state)
         r = self.renderer
         r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
@@ -244,9 +243,9 @@ class CameraCore:
             for o in ideal_outputs:
                 if outs[o]["rgb"] is not first:
                     np.copyto(outs[o]["rgb"], first)
-                out.append((o, outs[o], {**out_meta, "truth": meta.get("truth")}))
                 self.counts[o] += 1
-        out.extend(between)             # luma in time order: those before this state first
+                yield o, outs[o], {**out_meta, "truth": meta.get("truth")}
+        yield from between              # luma in time order: those before this state first
         if want_luma and self.physical:
             arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.float32)})
             lum = self.rig.luminance(self.data, self.cam, self._light_scale(state),
@@ -254,31 +253,36 @@ class CameraCore:
             if self.luma_renderer is not None:
                 self.rig.luminance_at(lum, arrays["luma"])
             self.counts["clipped_px"] += self.rig.radiance.clipped
-            out.append(("luma", arrays, {**out_meta, "units": "cd/m2"}))
             self.counts["luma"] += 1
             if self.sampler is not None:
                 self.sampler.observe(t_ep, log_luminance(arrays["luma"]))
+            yield "luma", arrays, {**out_meta, "units": "cd/m2"}
         elif want_luma:
             arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.uint8)})
             if self.luma_renderer is not None:
                 self.luma_renderer.luma(arrays["luma"])
             else:
                 r.luma(arrays["luma"], src=sharp)
-            out.append(("luma", arrays, out_meta))
             self.counts["luma"] += 1
             if self.sampler is not None:
                 self.sampler.observe(t_ep, arrays["luma"])
+            yield "luma", arrays, out_meta
         if rgb_due and "depth" in self.wanted:
             arrays = alloc("depth", {"depth": ((self.h, self.w), np.float32)})
             r.depth(arrays["depth"])
-            out.append(("depth", arrays, out_meta))
             self.counts["depth"] += 1
+            yield "depth", arrays, out_meta
         if rgb_due and "seg" in self.wanted:
             arrays = alloc("seg", {"seg": ((self.h, self.w, 2), np.int32)})
             r.segmentation(arrays["seg"])
-            out.append(("seg", arrays, out_meta))
             self.counts["seg"] += 1
-        return out
+            yield "seg", arrays, out_meta
+        if want_rgb and self.physical:
+            # last: its sub-frames re-pose the model, which the renders above read posed
+            frame = self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc)
+            t_next = meta.get("t_next_control") if p.rgb_hz <= 0 else None
+            self.next_t_end = None if t_next is None else t_next - self.rig.readout_s
+            yield frame
 
     def _luma_between(self, state: dict, ep, t_ep: float) -> list[tuple[str, dict, dict]]:
         """The luma samples the adaptive sampler asks for between the previous state and

@@ -3,13 +3,19 @@
 the chain's own compute, and the nav pipeline and recording throughput, in one run.
 
 loop      topologies/nav_policy.toml (sim, camera, emulator, accumulator, the shipped
-          rgb+event policy, tracker) on the **realtime** clock, the profiler attached.
-          The sensor-to-action chain is sim > camera > emulator > accumulator > policy >
-          sim: from the sim's send of a state to the end of its on_action handler (the
-          action applied). Beside it, the chain's own compute measured on the same
-          instances: the handler time along the chain (each actor's handler start to the
-          emit that carried the chain on; the sim's whole on_action), and their ratio
-          (the issue's figure: <= 1.7x). Per hop, p50 and share of the chain of queueing,
+          rgb+event policy, tracker) on the **realtime** clock, the profiler attached,
+          on the sensor pair `--sensor` names: ideal8 (default: the 8-bit path the
+          runtime's anchors were set on) or physical (the shipped pair, whose frame
+          camera model is rendering work on the loop; docs/runtime.md).
+          The sensor-to-action chain runs from the sim's send of a state to the end of
+          its on_action handler (the action applied), through whichever input completed
+          the tick: sim > camera > emulator > accumulator > policy > sim when the events
+          come last, sim > camera > policy > sim when the frame does (the physical pair
+          emits its frame last); every tick counts once (ProfileCollector.loop_latency),
+          `paths` says how many went each way. Beside it, the chain's own compute on the
+          most frequent path's instances: the handler time along the chain (each actor's
+          handler start to the emit that carried the chain on; the sim's whole
+          on_action), and their ratio (the issue's figure: <= 1.7x). Per hop, p50 and share of the chain of queueing,
           wake-up, transport and handler (definitions: sebvs/runtime/chainsplit.py,
           docs/runtime.md). The headline figures leave out the first second (the
           camera compiles its model and renderer on the first state, and the samples
@@ -27,14 +33,16 @@ loop      topologies/nav_policy.toml (sim, camera, emulator, accumulator, the sh
           is measured on a machine that is loaded on purpose, not by chance.
 pipeline  nav expert + emulator + accumulator, lockstep, dvs 200 Hz: real-time factor
           (tools/bench/bench_sim.py's bench_pipeline).
-record    `sebvs record topologies/nav_record.toml` at dvs 200 Hz: real-time factor of the
-          whole command, start-up included (tools/bench/bench_sim.py's bench_record).
+record    `sebvs record topologies/nav_record.toml` at dvs 200 Hz on the same sensor pair:
+          real-time factor of the whole command, start-up included
+          (tools/bench/bench_sim.py's bench_record).
 
 Each part runs --repeats times, one after the other; the headline figures are medians
 over the repeats, each repeat's figure is kept beside them. The machine's load average
 is recorded before and after: on a shared machine read the ratios, not the absolutes.
 
-    tools/bench/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only] [--set A.K=V] [--json OUT]
+    tools/bench/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only]
+                              [--sensor ideal8|physical] [--set A.K=V] [--json OUT]
 """
 from __future__ import annotations
 
@@ -47,17 +55,20 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.runtime.profiler import LOOP_TARGETS_MS, ProfileCollector  # noqa: E402
 from sebvs.runtime.supervisor import Supervisor  # noqa: E402
 from sebvs.runtime.topology import load_topology  # noqa: E402
+from sebvs.sensor_pairs import (SENSORS, camera_override, emulator_override,  # noqa: E402
+                                topology_overrides)
 from tools.bench.bench_sim import bench_pipeline, bench_record  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
 NAV_POLICY = ROOT / "topologies" / "nav_policy.toml"
-LOOP_CHAIN = "sim > camera > emulator > accumulator > policy > sim"
 # docs/runtime.md, "The loop's priority": on the realtime clock the loop's actors run at
 # SCHED_FIFO and the policy on its frozen graph unless told otherwise
 VARIANTS = {"plain": ['topology.loop_priority="none"', 'policy.graph="eager"'],
@@ -95,16 +106,18 @@ def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) ->
         if sup.failure:
             raise RuntimeError(f"nav_policy failed: {sup.failure.splitlines()[0]}")
     rep = collector.report()
-    instances = collector.chain_instances.get(LOOP_CHAIN)
-    if not instances:
-        raise RuntimeError(f"no instance of {LOOP_CHAIN!r} observed "
+    loop = collector.loop_latency(warmup_s)
+    if loop is None:
+        raise RuntimeError(f"no closed loop observed after the warm-up "
                            f"(chains: {[c['chain'] for c in rep['chains']]})")
+    instances = [i for c in loop["paths"] for i in collector.chain_instances[c]]
     since = min(i[0][0][2] for i in instances) + int(warmup_s * 1e9)
-    split = next(s for s in collector.split(since_ns=since) if s["chain"] == LOOP_CHAIN)
-    whole = next(s for s in rep["split"] if s["chain"] == LOOP_CHAIN)
+    split = next(s for s in collector.split(since_ns=since) if s["chain"] == loop["chain"])
     if not split["hops"]:
-        raise RuntimeError(f"no joined instance of {LOOP_CHAIN!r} after the warm-up")
-    chain = split["chain_us"]
+        raise RuntimeError(f"no joined instance of {loop['chain']!r} after the warm-up")
+    every = np.array([end - stamps[0][2] for stamps, end, _ in instances], float)
+    after = np.array([end - stamps[0][2] for stamps, end, _ in instances
+                      if stamps[0][2] >= since], float)
     # deadline: the action for tick k must be applied before tick k+1 (one control period)
     deadline_ns = 1e9 / control_hz
     ticks_sent = {r[2] for r in collector.kept.values()
@@ -114,13 +127,12 @@ def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) ->
     late = [i[1] - i[0][0][2] > deadline_ns for i in instances]
     lost = len(ticks_sent - ticks_acted)
     return {
-        "chain": LOOP_CHAIN, "warmup_s": warmup_s, "instances": split["instances"],
-        "split_resolved": split["resolved"],
-        "chain_p50_ms": _ms(chain["p50"]), "chain_p90_ms": _ms(chain["p90"]),
-        "chain_p99_ms": _ms(chain["p99"]), "chain_max_ms": _ms(chain["max"]),
-        "all": {"instances": whole["instances"], "chain_p50_ms": _ms(whole["chain_us"]["p50"]),
-                "chain_p99_ms": _ms(whole["chain_us"]["p99"]),
-                "chain_max_ms": _ms(whole["chain_us"]["max"]),
+        "chain": loop["chain"], "paths": loop["paths"], "warmup_s": warmup_s,
+        "instances": loop["instances"], "split_resolved": split["resolved"],
+        "chain_p50_ms": loop["p50_ms"], "chain_p90_ms": _pct_ms(after, 90),
+        "chain_p99_ms": loop["p99_ms"], "chain_max_ms": _pct_ms(after, 100),
+        "all": {"instances": len(every), "chain_p50_ms": _pct_ms(every, 50),
+                "chain_p99_ms": _pct_ms(every, 99), "chain_max_ms": _pct_ms(every, 100),
                 "late_in_warmup": sum(x for x, i in zip(late, instances)
                                       if i[0][0][2] < since)},
         "compute_p50_ms": _ms(split["compute_us"]["p50"]),
@@ -140,13 +152,17 @@ def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) ->
                                if e[0] == "sim" and e[1] == "deadlines"), None),
         "other_chains": {c["chain"]: {"count": c["count"], "p50_ms": _ms(c["p50"]),
                                       "p99_ms": _ms(c["p99"])}
-                         for c in rep["chains"] if c["chain"] != LOOP_CHAIN},
+                         for c in rep["chains"] if c["chain"] not in loop["paths"]},
         "skipped": rep["skipped"],
     }
 
 
 def _ms(us):
     return None if us is None else round(us / 1e3, 3)
+
+
+def _pct_ms(ns: np.ndarray, q: float):
+    return round(float(np.percentile(ns, q)) / 1e6, 3) if ns.size else None
 
 
 def _round(v, digits):
@@ -163,7 +179,7 @@ def summarize_loops(loops: list[dict]) -> dict:
     best = sorted(loops, key=lambda x: x["chain_p50_ms"])[len(loops) // 2]
     sim = [x["sim_deadlines"] for x in loops if x.get("sim_deadlines")]
     return {
-        "chain": LOOP_CHAIN, "clock": "realtime",
+        "chain": best["chain"], "paths": [x["paths"] for x in loops], "clock": "realtime",
         **{k: _median(loops, k) for k in ("chain_p50_ms", "chain_p99_ms",
                                           "compute_p50_ms", "chain_over_compute")},
         "p99_over_p50": _round(_median(loops, "chain_p99_ms") / _median(loops, "chain_p50_ms"),
@@ -208,6 +224,10 @@ def main() -> int:
                     help="a topology override for the loop and record parts (repeatable), "
                          "e.g. camera.luma_scale=0.5 for the paper's 80 px sensor; the "
                          "pipeline part keeps its own settings")
+    ap.add_argument("--sensor", choices=SENSORS, default="ideal8",
+                    help="the sensor pair of the loop and record parts: ideal8 (default, "
+                         "the 8-bit path the anchors were set on) or physical (the shipped "
+                         "pair); --set lines come after it")
     ap.add_argument("--json", metavar="OUT", help="write the results here")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
@@ -216,16 +236,19 @@ def main() -> int:
                             "pipeline_s": pipe_s, "record_episodes": rec_eps,
                             "record_episode_s": rec_s, "dvs_hz": 200.0, "load": args.load,
                             "variants": {k: v for k, v in VARIANTS.items()},
-                            "sets": args.set,
+                            "sensor": args.sensor, "sets": args.set,
                             "cpus": os.cpu_count(), "statistic": "median over repeats"},
                  "load_avg_before": list(os.getloadavg())}
     loops = {v: [] for v in VARIANTS}
     pipes, recs, notes = [], [], []
-    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v] + args.set),
+    loop_sets = topology_overrides(args.sensor) + args.set
+    record_sets = [camera_override(args.sensor), emulator_override(args.sensor), *args.set]
+    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v] + loop_sets),
               loops[v]) for v in VARIANTS]
     if not args.loop_only:
         parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
-                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=args.set), recs)]
+                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=record_sets),
+                   recs)]
     for r in range(repeats):
         # the variants alternate their order, so a slow phase of the machine hits both
         order = parts[:len(VARIANTS)][::-1 if r % 2 else 1] + parts[len(VARIANTS):]
