@@ -271,6 +271,30 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
     assert ahead_work[1:] == [left_for_tick] * 3
 
 
+def test_a_bad_next_tick_time_costs_the_rendering_ahead_not_the_frames():
+    from actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64, "height": 64})
+
+    def frames(t_next):
+        core = CameraCore(Camera.Params(sensor="physical", dvs_hz=100.0), {"rgb", "luma"})
+        out = []
+        for arrays, meta, *_ in states:
+            if "t_next_control" in meta:
+                meta = {**meta, "t_next_control": t_next(meta)}
+            out += [a["rgb"] for o, a, m in core.sample(arrays, meta) if o == "rgb"]
+        core.close()
+        return out, core.counts
+
+    good, counts = frames(lambda m: m["t_next_control"])
+    assert counts["subframes_ahead"] > 0 and counts["bad_t_next_control"] == 0
+    for bad in ("soon", float("nan"), True, -1.0, lambda m: m["t_ep"], None):
+        got, counts = frames(bad if callable(bad) else lambda m, bad=bad: bad)
+        assert all(np.array_equal(a, b) for a, b in zip(got, good)) and len(got) == 4
+        assert counts["subframes_ahead"] == 0
+        assert counts["bad_t_next_control"] == (0 if bad is None else 3), bad
+
+
 def test_nav_cells_at_the_sensor_separate_nominal_from_hdr():
     """The benchmark discriminates without training: the colour detector on the modelled
     frames finds the target in the nominal cell and loses it against the HDR windows,

@@ -103,7 +103,8 @@ class CameraCore:
             # comes (frames on control ticks only): its sub-frames are rendered as the
             # states that fix their poses arrive, not all at that tick
             self.next_t_end: float | None = None
-            self.counts.update(subframes_ahead=0, subframes_discarded=0)
+            self.counts.update(subframes_ahead=0, subframes_discarded=0,
+                               bad_t_next_control=0)
 
     def _build_rig(self, frame_rate_hz: float) -> None:
         from .rig import SensorRig
@@ -280,8 +281,8 @@ class CameraCore:
         if want_rgb and self.physical:
             # last: its sub-frames re-pose the model, which the renders above read posed
             frame = self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc)
-            t_next = meta.get("t_next_control") if p.rgb_hz <= 0 else None
-            self.next_t_end = None if t_next is None else t_next - self.rig.readout_s
+            self.next_t_end = self._next_exposure_end(
+                meta.get("t_next_control") if p.rgb_hz <= 0 else None, t_ep)
             yield frame
 
     def _luma_between(self, state: dict, ep, t_ep: float) -> list[tuple[str, dict, dict]]:
@@ -315,6 +316,22 @@ class CameraCore:
             self.counts["luma"] += 1
             self.counts["luma_between"] += 1
         return out
+
+    def _next_exposure_end(self, t_next, t_ep: float) -> float | None:
+        """When the next frame's exposure ends, from a tick's t_next_control: None where
+        the sim said nothing, or something other than a later finite time (counted in
+        bad_t_next_control, logged once); that frame is then rendered at its tick."""
+        if t_next is None:
+            return None
+        if isinstance(t_next, bool) or not isinstance(t_next, (int, float)) \
+                or not math.isfinite(t_next) or not t_next > t_ep:
+            if not self.counts["bad_t_next_control"]:
+                self.log.warning("camera: t_next_control %r at t_ep %s is not a later time; "
+                                 "frames are rendered at their ticks (bad_t_next_control "
+                                 "counts these)", t_next, t_ep)
+            self.counts["bad_t_next_control"] += 1
+            return None
+        return float(t_next) - self.rig.readout_s
 
     @staticmethod
     def _light_scale(state: dict) -> float:
