@@ -107,6 +107,15 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
                          "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
         assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        # --update: the page's prose stays, the tables between the markers are remade
+        page = tmp_path / "results.md"
+        page.write_text(f"# Results\nprose\n{rep.BEGIN}\nold tables\n{rep.END}\nmore prose\n")
+        assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 3
+        assert page.read_text() == \
+            f"# Results\nprose\n{rep.BEGIN}\n{text.rstrip()}\n{rep.END}\nmore prose\n"
+        page.write_text("# Results\nno markers\n")
+        assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 2
+        assert page.read_text() == "# Results\nno markers\n"       # left alone
 
 
 def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
