@@ -107,6 +107,15 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
                          "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
         assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        # --update: the page's prose stays, the tables between the markers are remade
+        page = tmp_path / "results.md"
+        page.write_text(f"# Results\nprose\n{rep.BEGIN}\nold tables\n{rep.END}\nmore prose\n")
+        assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 3
+        assert page.read_text() == \
+            f"# Results\nprose\n{rep.BEGIN}\n{text.rstrip()}\n{rep.END}\nmore prose\n"
+        page.write_text("# Results\nno markers\n")
+        assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 2
+        assert page.read_text() == "# Results\nno markers\n"       # left alone
 
 
 def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
@@ -218,3 +227,21 @@ def test_run_finishes_each_cell_before_the_next_and_stops_at_a_failure(tmp_path,
         first.done.unlink(missing_ok=True)
         assert study.main(argv + ["--only", "arm10,nav30"]) == 0
         assert [study.step_cell(s) for s in ran] == ["arm10", "nav30"]
+
+
+def test_ray_sends_the_recordings_and_evaluations_there_and_changes_nothing_else(tmp_path):
+    with tool_module("studies/sensor_study") as study:
+        here = study.plan_steps(tmp_path, 2, {"nav10"})
+        ray = study.plan_steps(tmp_path, 8, {"nav10"}, ray="ray://head:10001")
+        local = study.plan_steps(tmp_path, 2, {"nav10"}, ray="")
+    assert [s.label for s in here] == [s.label for s in ray]
+    for a, b, c in zip(here, ray, local):
+        assert "--ray" not in a.argv
+        if a.kind in ("record", "eval"):
+            i = b.argv.index("--ray")
+            assert b.argv[i + 1] == "ray://head:10001"
+            assert b.argv[b.argv.index("--workers") + 1] == "8"
+            assert list(c.argv) == [*a.argv[:a.argv.index("--workers") + 2], "--ray",
+                                    *a.argv[a.argv.index("--workers") + 2:]]
+        else:
+            assert a.argv == b.argv == c.argv and a.done == b.done

@@ -3,7 +3,7 @@
 what tools/studies/sensor_study.py wrote, in the shape docs/study_sensors_plan.md fixes.
 
     tools/studies/sensor_report.py [--out out/study_sensors] [--markdown FILE] [--json FILE]
-                                   [--plot FILE]
+                                   [--plot FILE] [--update docs/results.md]
 
 Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff at each
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
@@ -261,6 +261,23 @@ def plot(data: dict, path: Path) -> None:
     plt.close(fig)
 
 
+BEGIN = "<!-- sensor_report.py: begin -->"
+END = "<!-- sensor_report.py: end -->"
+
+
+def replace_block(doc: str, tables: str) -> str:
+    """`doc` with what stands between its BEGIN and END lines replaced by `tables`:
+    the page's own prose stays, the tables are regenerated. ValueError unless each
+    marker stands once, BEGIN first."""
+    lines = doc.splitlines(keepends=True)
+    at = {m: [i for i, line in enumerate(lines) if line.strip() == m] for m in (BEGIN, END)}
+    if len(at[BEGIN]) != 1 or len(at[END]) != 1 or at[BEGIN][0] > at[END][0]:
+        raise ValueError(f"needs one line {BEGIN!r} and, after it, one line {END!r} "
+                         f"(found {len(at[BEGIN])} and {len(at[END])})")
+    b, e = at[BEGIN][0], at[END][0]
+    return "".join(lines[:b + 1]) + tables.rstrip("\n") + "\n" + "".join(lines[e:])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -269,8 +286,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", type=Path, help="write the tables here (default: print)")
     ap.add_argument("--json", type=Path, help="also write the data behind them here")
     ap.add_argument("--plot", type=Path, help="also draw them as one figure here (PNG)")
+    ap.add_argument("--update", type=Path, metavar="DOC",
+                    help=f"put the tables into DOC (docs/results.md) between its lines "
+                         f"{BEGIN!r} and {END!r}, the rest of it left as it is")
     args = ap.parse_args(argv)
     text, data, done = report(args.out)
+    if args.update:
+        try:
+            args.update.write_text(replace_block(args.update.read_text(), text))
+        except (OSError, ValueError) as exc:
+            print(f"sensor_report: --update {args.update}: {exc}", file=sys.stderr)
+            return 2
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
         args.markdown.write_text(text)

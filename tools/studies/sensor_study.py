@@ -30,8 +30,9 @@ Stop it with Ctrl-C, or SIGTERM to its process group (a job started in the backg
 a script ignores SIGINT): `sebvs record` keeps every finished episode, and a step that
 fails or is stopped stops the steps after it. Trainings run two at a time (--parallel,
 one thread each, as the recipe says);
-recordings and evaluations use --workers (default 2). Output under --out (default
-out/study_sensors) and the datasets under datasets/.
+recordings and evaluations use --workers (default 2), on Ray with --ray (a cluster's
+ADDRESS, or a local Ray): the same episodes and results either way. Output under --out
+(default out/study_sensors) and the datasets under datasets/.
 """
 from __future__ import annotations
 
@@ -119,9 +120,14 @@ def eval_dir(out: Path, task: str, rate: int, seed: int, group: str) -> Path:
     return out / "eval" / f"{task}{rate}" / f"seed{seed}" / group
 
 
-def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
-    """Every step of the plan, in its order: recordings, trainings, evaluations, readings."""
+def plan_steps(out: Path, workers: int, cells: set[str] | None,
+               ray: str | None = None) -> list[Step]:
+    """Every step of the plan, in its order: recordings, trainings, evaluations, readings.
+    ray: None, or the recordings and evaluations go to Ray (`--ray [ADDRESS]`, "" for a
+    local Ray; `workers` is then their tasks in flight); the results are the same."""
     sebvs = [sys.executable, "-m", "sebvs.cli"]
+    ray_args = [] if ray is None else ["--ray"] + ([ray] if ray else [])
+    fan_out = ["--workers", str(workers), *ray_args]
     keys = [(t, r) for t in ("nav", "arm") for r in (10, 30)
             if cells is None or f"{t}{r}" in cells]
     steps = []
@@ -130,7 +136,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
         data = dataset_dir(task, rate)
         steps.append(Step("record", f"record {task} {rate} Hz", tuple(
             sebvs + ["record", TOPOLOGY[task], "--episodes", str(episodes), "--out", str(data),
-                     "--workers", str(workers), "--quiet",
+                     *fan_out, "--quiet",
                      *sets([*extra, f"topology.seed={seed}", *PHYS, *RATE_SETS[rate],
                             RANDOMISE[task]])]), data / "index.json", episodes))
     for task, rate in keys:
@@ -157,7 +163,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
                              "--split", "test", "--seed", str(TEST_SEED[task]),
                              "--episodes", str(EPISODES_PER_CELL), "--conditions", conditions,
                              "--scenarios", scenarios, *rate_args, *rows,
-                             "--workers", str(workers), "--out", str(d),
+                             *fan_out, "--out", str(d),
                              *sets(EVAL_SETS[task])]), d / "results.json"))
     for task, rate in keys:
         runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
@@ -368,6 +374,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
+    ap.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                    help="recordings and evaluations on Ray: the cluster at ADDRESS, or a "
+                         "local Ray without one (--workers is then their tasks in flight; "
+                         "needs the [ray] extra); trainings stay here, --parallel at once")
     args = ap.parse_args(argv)
     kinds = args.steps.split(",")
     cells = set(args.only.split(",")) if args.only else None
@@ -381,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         args.out = args.out / "smoke"
         steps = [s for s in smoke_steps(args.out, args.workers, cells) if s.kind in kinds]
     else:
-        steps = [s for s in plan_steps(args.out, args.workers, cells) if s.kind in kinds]
+        steps = [s for s in plan_steps(args.out, args.workers, cells, args.ray)
+                 if s.kind in kinds]
     if args.action == "plan":
         for s in steps:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
