@@ -27,6 +27,43 @@ def test_shares_count_the_box_in_the_event_frames_resolution():
         assert np.allclose(area_m, 144 / 1600) and share_m[0] == 1.0
 
 
+def _dataset(root, sensor=None):
+    """Two 4-frame nav episodes (indoor: no target events, outdoor: 5 per target pixel),
+    a 2 x 2 px target at (12, 12) with a 10 px wide contrast step behind it."""
+    idx = DatasetIndex(root, "nav")
+    topology = {} if sensor is None else {"topology": {
+        "file": "nav_record.toml", "overrides": [],
+        "content": {"actors": {"camera": {"sensor": sensor}}}}}
+    for variant, inside in (("indoor", 0), ("outdoor", 5)):
+        path = idx.path_for(idx.next_episode_number())
+        w = EpisodeWriter(path, "nav", {"scene": "nav", "conditions": {"variant": variant},
+                                        "seed": 1, **topology})
+        for t in range(4):
+            ev = np.zeros((2, 32, 32), np.uint8)
+            ev[0, 0:2, 0:2] = 1                             # background edges
+            ev[1, 12:14, 12:14] = inside                    # the target's
+            rgb = np.zeros((32, 32, 3), np.uint8)
+            rgb[8:24, 8:24] = 200                            # a box the contrast can read
+            w.append(rgb=rgb, event_frame=ev, t_sim=0.1 * t, tick=t, action=np.zeros(2),
+                     truth={"bbox": np.array([10.0, 10.0, 22.0, 22.0]),
+                            "image": np.array([32.0, 32.0]), "visible": 1.0})
+        w.finish("time_limit")
+        idx.add(make_entry(path))
+
+
+def test_no_contrast_is_read_off_a_frame_the_emulator_did_not_see(tmp_path):
+    """Through the physical camera the emulator read linear luminance: the frame's luma
+    says nothing about its threshold, so the contrast is left unmeasured."""
+    with tool_module("studies/event_share") as tool:
+        for sensor in ("ideal8", "physical"):
+            _dataset(tmp_path / sensor, sensor)
+        eight = tool.summarise(tool.collect(tmp_path / "ideal8", ["variant"], 0.0))
+        linear = tool.summarise(tool.collect(tmp_path / "physical", ["variant"], 0.0))
+    assert all(r["edge_contrast_p50"] is not None for r in eight)
+    assert all(r["edge_contrast_p50"] is None for r in linear)
+    assert [r["density_ratio_p50"] for r in eight] == [r["density_ratio_p50"] for r in linear]
+
+
 def test_the_tool_groups_by_scene_setting(tmp_path, capsys):
     with tool_module("studies/event_share") as tool:
         idx = DatasetIndex(tmp_path / "ds", "nav")

@@ -35,6 +35,14 @@ def test_object_dtype_refused():
         dtype_from_wire("|O")
 
 
+def test_a_deprecated_dtype_alias_is_a_bad_descriptor_not_a_warning():
+    with pytest.raises(WireError, match="bad dtype descriptor 'a5'"):
+        dtype_from_wire("a5")
+    with pytest.raises(WireError, match="bad dtype descriptor"):
+        dtype_from_wire([[["x", "a5", 0]], 5])
+    assert dtype_from_wire("|S5") == np.dtype("S5")      # what a sender writes for it
+
+
 @pytest.mark.parametrize("raw, reason", [
     (b"\xc1\xc1\xc1", "not msgpack"),
     (b"\x93\x01\x02\x03", "not a map"),

@@ -16,7 +16,10 @@ of a 2 px band beyond each side edge, 1 px out, the larger of the two sides (a t
 crossing the image horizontally fires on its side edges). A pixel fires only when its
 level moves by the threshold (the episode's emulator pos_thres / neg_thres), so an edge
 of lower contrast makes no events however fast it moves. (The emulator sees sharp luma;
-in motion-blurred episodes the recorded RGB frame is smeared and understates it.)
+in motion-blurred episodes the recorded RGB frame is smeared and understates it.) An
+episode recorded through the physical camera (its topology's camera.sensor "physical")
+fed the emulator the scene's linear luminance, which a dataset does not keep, not its
+frame's luma: its contrast is not measured, and the contrast columns show "-" for it.
 
     python tools/studies/event_share.py datasets/nav_rand [--json out.json] [--by variant,lighting]
                                 [--figure shares.png]
@@ -87,6 +90,14 @@ def edge_contrast(rgb: np.ndarray, bbox: np.ndarray, image: np.ndarray) -> float
     return max(abs(inside - left), abs(inside - right))
 
 
+def _camera_sensor(attrs) -> str:
+    """The camera sensor an episode was recorded through (its resolved topology's; the
+    camera's default, "ideal8", where the topology does not say)."""
+    topology = attrs.get("topology") or {}
+    camera = (topology.get("content") or {}).get("actors", {}).get("camera", {})
+    return camera.get("sensor", "ideal8") if isinstance(camera, dict) else "ideal8"
+
+
 def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, list]]:
     groups: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for name in episode_files(root):
@@ -108,8 +119,11 @@ def collect(root: Path, by: list[str], margin: float) -> dict[str, dict[str, lis
             emulator = (ep.attrs.get("emulator") or {}).get("resolved", {})
             thresholds = [float(emulator.get(k, "nan")) for k in ("pos_thres", "neg_thres")]
             g = groups[key]
-            g["contrast"] += [edge_contrast(np.asarray(ep.rgb[k]), bbox[k], image[k])
-                              for k in idx]
+            if _camera_sensor(ep.attrs) == "physical":   # not what its emulator saw
+                g["contrast"] += [float("nan")] * idx.size
+            else:
+                g["contrast"] += [edge_contrast(np.asarray(ep.rgb[k]), bbox[k], image[k])
+                                  for k in idx]
             g["threshold"].append(min(thresholds))
             g["events"] += total.tolist()
             g["share"] += share.tolist()
