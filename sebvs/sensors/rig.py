@@ -128,11 +128,9 @@ class SensorRig:
         """
         if self.camera is None:
             raise RuntimeError("sensor rig: new_episode() before the first frame")
-        ex = self._pending
-        if ex is not None and (exposure_s is not None or not self._pending_for(t_end)):
+        if exposure_s is not None:        # a manual exposure: not the one rendered ahead
             self._drop_pending()
-            ex = None
-        self._pending = None
+        ex, self._pending = self._pending_for(t_end), None
         if ex is None:
             ex = self._exposure(t_end, exposure_s or self.camera.exposure_s)
         else:
@@ -155,10 +153,7 @@ class SensorRig:
         many sub-frames this call rendered. Poses `data` as frame() does."""
         if self.camera is None or not history.times:
             return 0
-        ex = self._pending
-        if ex is not None and not self._pending_for(t_end):
-            self._drop_pending()
-            ex = None
+        ex = self._pending_for(t_end)
         if ex is None:
             ex = self._pending = self._exposure(t_end, self.camera.exposure_s)
         if ex.frame is not None:
@@ -169,12 +164,15 @@ class SensorRig:
             self._expose(ex, None)
         return int(todo.size)
 
-    def _pending_for(self, t_end: float) -> bool:
-        """The exposure ahead is the one a frame ending at `t_end` would take now (once
-        it is exposed, the auto exposure has moved on: its end alone says)."""
+    def _pending_for(self, t_end: float) -> "_Exposure | None":
+        """The exposure ahead if it is the one a frame ending at `t_end` would take now
+        (once it is exposed, the auto exposure has moved on: its end alone says); any
+        other is dropped (counted) and None returned."""
         ex = self._pending
-        return ex.t_end == t_end and (ex.frame is not None
-                                      or ex.exposure_s == self.camera.exposure_s)
+        if ex is not None and not (ex.t_end == t_end and (
+                ex.frame is not None or ex.exposure_s == self.camera.exposure_s)):
+            self._drop_pending()
+        return self._pending
 
     def _drop_pending(self) -> None:
         if self._pending is not None:
