@@ -185,6 +185,64 @@ def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch)
         assert "steps have no estimate yet" in text
 
 
+def test_status_times_a_training_by_its_own_record_and_the_epochs_it_ran(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100, "study_arm10": 200})
+        train = [s for s in study.plan_steps(tmp_path, 2, {"nav10", "arm10"})
+                 if s.kind == "train"]
+        nav = [s for s in train if s.label.startswith("train nav")]
+        arm = [s for s in train if s.label.startswith("train arm")]
+        ran = {0: (6, 1200.0), 1: (8, 800.0), 2: (5, 500.0)}     # of 10 planned, stopped early
+        for i, (epochs, seconds) in ran.items():
+            nav[i].done.parent.mkdir(parents=True, exist_ok=True)
+            nav[i].done.write_bytes(b"")
+            nav[i].done.with_suffix(".json").write_text(json.dumps(
+                {"training": {"epochs": 10, "epochs_run": epochs, "seconds": seconds,
+                              "resumed_after_epochs": [3]}}))
+        # the log saw only the last part of seed 0's resumed training; its record has all
+        took = {nav[0].label: 300.0, nav[1].label: 800.0}
+        text = study.status_text(train, ["train"], took)
+        assert f"done: {nav[0].label} (20 min)" in text
+        assert f"done: {nav[2].label} (8 min)" in text             # in no log at all
+        assert study.step_work(nav[0]) == 100 * 6                 # the epochs it ran
+        # per frame-epoch: 2.0, 1.0, 1.0 s (median 1 s); nav runs 6 of 10 planned (median)
+        assert f"left: {nav[3].label} (~10 min, from 3 done like it)" in text      # 100 x 6
+        # no arm training done: the planned 16 epochs, scaled from the nav ones by frames
+        assert f"left: {arm[0].label} (~53 min, scaled by frames from 3 done trainings)" in text
+        # a sidecar without a usable record: the log's time, the planned epochs
+        nav[3].done.write_bytes(b"")
+        nav[3].done.with_suffix(".json").write_text('{"training": {"seconds": "soon"}}')
+        assert study.training_record(nav[3]) is None
+        assert study.step_work(nav[3]) == 100 * 10
+
+
+def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
+    import signal
+    import sys
+    import threading
+    with tool_module("studies/sensor_study") as study:
+        step = study.Step("train", "train nav 10 Hz rgb seed 0", ("x",), tmp_path / "x.pt")
+        monkeypatch.setattr(study, "command_of", lambda s: [
+            sys.executable, "-c", "import time; print('started', flush=True); time.sleep(60)"])
+        log = tmp_path / "log.txt"
+        result = []
+        runner = threading.Thread(target=lambda: result.append(
+            study.run_step(step, log, threading.Event())))
+        runner.start()
+        for _ in range(200):                          # until the step's process is up
+            if "started" in log.read_text() if log.exists() else False:
+                break
+            threading.Event().wait(0.05)
+        study.stop_running(signal.SIGTERM, None)
+        runner.join(10)
+        assert not runner.is_alive()
+        assert result[0][1] == -signal.SIGTERM
+        assert f"=== exit -15 after " in log.read_text()
+        assert step.label in study.step_seconds(log)
+        # a stopped driver starts nothing more
+        assert study.run_step(step, log, threading.Event())[1] is None
+
+
 def test_run_finishes_each_cell_before_the_next_and_stops_at_a_failure(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
         ran = []

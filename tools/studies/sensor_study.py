@@ -26,9 +26,11 @@ read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Dif
 asked for, in order, for one task and rate before the next, so that a study spread over
 sessions finishes whole cells first (and the evaluation meets real checkpoints early).
 
-Stop it with Ctrl-C, or SIGTERM to its process group (a job started in the background by
-a script ignores SIGINT): `sebvs record` keeps every finished episode, and a step that
-fails or is stopped stops the steps after it. Trainings run two at a time (--parallel,
+Stop it with Ctrl-C, or SIGTERM to it or its process group (a job started in the
+background by a script ignores SIGINT): the steps in flight are stopped and log how long
+they ran (`status` counts it), `sebvs record` keeps every finished episode, a training
+goes on from its last finished epoch, and a step that fails or is stopped stops the
+steps after it. Trainings run two at a time (--parallel,
 one thread each, as the recipe says);
 recordings and evaluations use --workers (default 2), on Ray with --ray (a cluster's
 ADDRESS, or a local Ray): the same episodes and results either way. Output under --out
@@ -37,7 +39,9 @@ ADDRESS, or a local Ray): the same episodes and results either way. Output under
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
+import signal
 import subprocess
 import sys
 import threading
@@ -264,16 +268,39 @@ def step_seconds(log: Path) -> dict[str, float]:
     return took
 
 
-def step_work(step: Step) -> float:
-    """A step's size in the unit its time scales with: a training's frames times its
-    epochs (the dataset's, as indexed), an evaluation's simulated seconds over all its
-    rows (modalities, and the expert and no action where it has them)."""
+def training_record(step: Step) -> dict | None:
+    """A finished training's own record (the "training" block of the JSON beside its
+    checkpoint): its wall seconds over every resumed part and the epochs it ran, which
+    early stopping can make fewer than planned. None before it finishes."""
+    sidecar = step.done.with_suffix(".json")
+    if step.kind != "train" or not step.done.exists() or not sidecar.exists():
+        return None
+    try:
+        training = json.loads(sidecar.read_text()).get("training", {})
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(training.get("seconds"), (int, float)) or \
+            not isinstance(training.get("epochs_run"), int):
+        return None
+    return training
+
+
+def step_work(step: Step, epochs: float | None = None) -> float:
+    """A step's size in the unit its time scales with: a training's frames (the dataset's,
+    as indexed) times its epochs (those it ran once done, else ``epochs``, else the
+    planned), an evaluation's simulated seconds over all its rows (modalities, and the
+    expert and no action where it has them)."""
     argv = step.argv
     if step.kind == "train":
         data = Path(argv[argv.index("--data") + 1])
         frames = (sum(e.get("frames", 0) for e in DatasetIndex(data).episodes())
                   if (data / "index.json").exists() else 0)
-        return float(frames * int(argv[argv.index("--epochs") + 1]))
+        record = training_record(step)
+        if record is not None:
+            epochs = record["epochs_run"]
+        elif epochs is None:
+            epochs = int(argv[argv.index("--epochs") + 1])
+        return float(frames * epochs)
     if step.kind == "eval":
         task = argv[argv.index("--task") + 1]
         rows = len(argv[argv.index("--modalities") + 1].split(","))
@@ -284,6 +311,19 @@ def step_work(step: Step) -> float:
         return float(rows * cells * int(argv[argv.index("--episodes") + 1])
                      * episode_seconds(task, argv))
     return 1.0
+
+
+def expected_epochs(step: Step, done: list[Step]) -> float | None:
+    """The epochs a training left to run should take: its planned epochs times the median
+    share of their plan that the done trainings of its task ran (nav stops early on a
+    patience, the arm does not); None with none done."""
+    task = step.argv[step.argv.index("--task") + 1]
+    shares = sorted(r["epochs_run"] / int(d.argv[d.argv.index("--epochs") + 1])
+                    for d in done if d.argv[d.argv.index("--task") + 1] == task
+                    and (r := training_record(d)) is not None)
+    if not shares:
+        return None
+    return shares[len(shares) // 2] * int(step.argv[step.argv.index("--epochs") + 1])
 
 
 def episode_seconds(task: str, argv: tuple[str, ...]) -> float:
@@ -302,12 +342,21 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     """What is done (with its wall time) and what is left, each left step with an
     estimate: the median time per unit of work (step_work) of the done steps of its kind,
     task, rate (and evaluation group), times its work; a training with none of those done
-    is scaled from every done training. Trainings run ``parallel`` at once."""
+    is scaled from every done training. A done training is timed by its own record (every
+    resumed part, see training_record), which the log misses for a part stopped before
+    the driver wrote exit lines; one left is sized by the epochs its task's done ones
+    ran. Trainings run ``parallel`` at once."""
     def group(step: Step) -> str:
         words = step.label.split()
         return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
 
-    work = {s.label: step_work(s) for s in steps if s.kind in kinds}   # reads indexes once
+    took = dict(took)
+    for s in steps:
+        if (record := training_record(s)) is not None:
+            took[s.label] = float(record["seconds"])
+    finished = [s for s in steps if s.kind == "train" and is_done(s)]
+    work = {s.label: step_work(s, expected_epochs(s, finished) if s.kind == "train" else None)
+            for s in steps if s.kind in kinds}                      # reads indexes once
 
     def rate(done: list[Step]) -> float | None:
         per = sorted(took[d.label] / work[d.label] for d in done
@@ -342,17 +391,39 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     return "\n".join(lines)
 
 
+_RUNNING: set[subprocess.Popen] = set()
+_RUNNING_LOCK = threading.Lock()
+STOPPING = threading.Event()
+
+
+def stop_running(signum: int, frame) -> None:
+    """SIGTERM or SIGINT to the driver: its steps are stopped (each writes its exit line,
+    so that the time it ran still counts) and no other step starts."""
+    STOPPING.set()
+    with _RUNNING_LOCK:
+        for proc in _RUNNING:
+            if proc.poll() is None:
+                proc.send_signal(signum)
+
+
 def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | None, float]:
     """Run one step, its output to the log; (step, exit code, seconds), or a None code
-    when an earlier step failed and this one never started."""
-    if stop.is_set():
+    when an earlier step failed, or the driver was stopped, before this one started."""
+    if stop.is_set() or STOPPING.is_set():
         return step, None, 0.0
     t0 = time.monotonic()
     argv = command_of(step)
     with log.open("a") as f:
         f.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n")
         f.flush()
-        code = subprocess.run(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT).returncode
+        with _RUNNING_LOCK:
+            proc = subprocess.Popen(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT)
+            _RUNNING.add(proc)
+        try:
+            code = proc.wait()
+        finally:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(proc)
         # the label again: trainings run side by side and write into one log
         f.write(f"=== exit {code} after {time.monotonic() - t0:.0f} s: {step.label}\n")
     return step, code, time.monotonic() - t0
@@ -402,6 +473,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
+    signal.signal(signal.SIGTERM, stop_running)
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:     # a background job's stays
+        signal.signal(signal.SIGINT, stop_running)
     print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
     order = args.only.split(",") if args.only else list(dict.fromkeys(map(step_cell, steps)))
     for cell in dict.fromkeys(order):
@@ -430,7 +504,8 @@ def run_together(todo: list[Step], log: Path, parallel: int) -> bool:
             step, code, took = future.result()
             if code is None:
                 continue                     # never started: an earlier step failed
-            state = "done" if code == 0 and is_done(step) else f"FAILED (exit {code})"
+            state = ("done" if code == 0 and is_done(step) else
+                     f"stopped (exit {code})" if STOPPING.is_set() else f"FAILED (exit {code})")
             print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
             if state != "done":
                 stop.set()                   # nothing new starts; running ones end
