@@ -315,8 +315,9 @@ def step_work(step: Step, epochs: float | None = None) -> float:
 
 def expected_epochs(step: Step, done: list[Step]) -> float | None:
     """The epochs a training left to run should take: its planned epochs times the median
-    share of their plan that the done trainings of its task ran (nav stops early on a
-    patience, the arm does not); None with none done."""
+    share of their plan that the done trainings of its task ran (each task stops early on
+    its own patience: nav after 3 epochs without a better validation loss, the arm after
+    4); None with none done."""
     task = step.argv[step.argv.index("--task") + 1]
     shares = sorted(r["epochs_run"] / int(d.argv[d.argv.index("--epochs") + 1])
                     for d in done if d.argv[d.argv.index("--task") + 1] == task
