@@ -313,17 +313,18 @@ def step_work(step: Step, epochs: float | None = None) -> float:
     return 1.0
 
 
-def expected_epochs(step: Step, done: list[Step]) -> float | None:
-    """The epochs a training left to run should take: its planned epochs times the median
-    share of their plan that the done trainings of its task ran (nav stops early on a
-    patience, the arm does not); None with none done."""
-    task = step.argv[step.argv.index("--task") + 1]
-    shares = sorted(r["epochs_run"] / int(d.argv[d.argv.index("--epochs") + 1])
-                    for d in done if d.argv[d.argv.index("--task") + 1] == task
-                    and (r := training_record(d)) is not None)
-    if not shares:
-        return None
-    return shares[len(shares) // 2] * int(step.argv[step.argv.index("--epochs") + 1])
+def epoch_shares(steps: list[Step]) -> dict[str, float]:
+    """Per task, the median share of their planned epochs that its done trainings ran: a
+    training left to run is expected to run that share of its plan (each task stops early
+    on its own patience: nav after 3 epochs without a better validation loss, the arm
+    after 4). A task with no training done has no entry."""
+    shares: dict[str, list[float]] = {}
+    for s in steps:
+        if (record := training_record(s)) is not None:
+            task = s.argv[s.argv.index("--task") + 1]
+            planned = int(s.argv[s.argv.index("--epochs") + 1])
+            shares.setdefault(task, []).append(record["epochs_run"] / planned)
+    return {task: sorted(v)[len(v) // 2] for task, v in shares.items()}
 
 
 def episode_seconds(task: str, argv: tuple[str, ...]) -> float:
@@ -350,12 +351,15 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
         words = step.label.split()
         return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
 
-    took = dict(took)
-    for s in steps:
-        if (record := training_record(s)) is not None:
-            took[s.label] = float(record["seconds"])
-    finished = [s for s in steps if s.kind == "train" and is_done(s)]
-    work = {s.label: step_work(s, expected_epochs(s, finished) if s.kind == "train" else None)
+    took = {**took, **{s.label: float(r["seconds"]) for s in steps
+                       if (r := training_record(s)) is not None}}
+    shares = epoch_shares(steps)
+
+    def expected_epochs(step: Step) -> float | None:
+        share = shares.get(step.argv[step.argv.index("--task") + 1])
+        return None if share is None else share * int(step.argv[step.argv.index("--epochs") + 1])
+
+    work = {s.label: step_work(s, expected_epochs(s) if s.kind == "train" else None)
             for s in steps if s.kind in kinds}                      # reads indexes once
 
     def rate(done: list[Step]) -> float | None:
