@@ -256,13 +256,15 @@ def test_the_shipped_topologies_and_checkpoints_are_the_physical_pair():
     policy = load_topology(root / "topologies" / "nav_policy.toml", topology_overrides("ideal8"))
     assert policy.actors["policy"].params["directory"] == "checkpoints/ideal8"
     # the plan's four policies of the physical pair; the 8-bit benchmark's three beside them
-    shipped = {pair: {pt.name for pt in (root / checkpoint_dir(pair)).glob("nav-*.pt")}
-               for pair in ("physical", "ideal8")}
-    assert shipped == {"physical": {"nav-rgb.pt", "nav-event.pt", "nav-rgb+event.pt",
-                                    "nav-rgb+diff.pt"},
-                       "ideal8": {"nav-rgb.pt", "nav-event.pt", "nav-rgb+event.pt"}}
-    for pt in (root / checkpoint_dir("physical")).glob("nav-*.pt"):
-        assert read_config(pt)["dataset"]["path"].endswith("study_nav10"), pt
+    for task in ("nav", "arm"):
+        shipped = {pair: {pt.name for pt in (root / checkpoint_dir(pair)).glob(f"{task}-*.pt")}
+                   for pair in ("physical", "ideal8")}
+        paper = {f"{task}-rgb.pt", f"{task}-event.pt", f"{task}-rgb+event.pt"}
+        assert shipped == {"physical": paper | {f"{task}-rgb+diff.pt"}, "ideal8": paper}, task
+        for pt in (root / checkpoint_dir("physical")).glob(f"{task}-*.pt"):
+            config = read_config(pt)
+            assert config["dataset"]["path"].endswith(f"study_{task}10"), pt
+            assert config["training"]["seed"] == 0, pt
 
 
 def test_a_demo_swap_to_the_frame_difference_loads_its_checkpoint():
