@@ -20,12 +20,17 @@ from .sensor_pairs import SENSORS, topology_overrides
 
 
 def _format_metrics(records: list[dict]) -> str:
-    rows = []
-    for r in records:
-        for mod, m in r["by_modality"].items():
-            rows.append((r["episode"], mod, m))
-    if not rows:
+    """The tracker's finished episodes as a table: nav's per modality that acted (a swap
+    can fall inside an episode), the arm's per episode (21 ticks, then the grasp)."""
+    if not records:
         return "tracking: no finished episode"
+    if all("by_modality" in r for r in records):
+        return _format_nav(records)
+    return _format_arm(records)
+
+
+def _format_nav(records: list[dict]) -> str:
+    rows = [(r["episode"], mod, m) for r in records for mod, m in r["by_modality"].items()]
     lines = ["tracking (Table 4 metrics, privileged truth; success = target within 200 px "
              "of the centre at 640 px, scaled)",
              f"{'episode':>7}  {'modality':<10} {'frames':>6} {'centroid err px':>16} "
@@ -35,6 +40,23 @@ def _format_metrics(records: list[dict]) -> str:
                      f"{m['centroid_error_px']:>8.1f} ± {m['centroid_error_std_px']:<5.1f} "
                      f"{m['bbox_width_px']:>9.1f} {100 * m['success']:>9.1f} "
                      f"{100 * m['visible']:>9.1f}")
+    return "\n".join(lines)
+
+
+def _format_arm(records: list[dict]) -> str:
+    lines = ["tracking (Table 5 metrics against the task's pose, privileged truth; the arm "
+             "tracker scores whole episodes, whichever modality acted)",
+             f"{'episode':>7}  {'ticks':>5} {'position err mm':>16} {'yaw err deg':>11} "
+             f"{'accuracy %':>10}  outcome"]
+    for r in records:
+        m = r.get("metrics") or {}
+        if "position_error_mm" not in m:
+            lines.append(f"{r.get('episode', '?'):>7}  no scored tick ({r.get('reason', '')})")
+            continue
+        lines.append(f"{r['episode']:>7}  {r['ticks']:>5} "
+                     f"{m['position_error_mm']:>8.1f} ± {m['position_error_std_mm']:<5.1f} "
+                     f"{m['yaw_error_deg']:>11.1f} {100 * m['accuracy']:>10.1f}  "
+                     f"{m.get('outcome') or '-'}")
     return "\n".join(lines)
 
 
