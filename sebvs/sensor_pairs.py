@@ -7,8 +7,7 @@ sensor study, docs/study_sensors_plan.md).
 
 ``ideal8``: the benchmark before it, where both sensors read one ideal 8-bit render:
 ``camera.sensor="ideal8"`` and the emulator's "paper" preset (the paper's v2e settings).
-Its checkpoints are in checkpoints/ideal8/; docs/results.md's tables before the sensor
-study's report are its results.
+Its checkpoints are in checkpoints/ideal8/; docs/results/'s pages are its results.
 """
 from __future__ import annotations
 
