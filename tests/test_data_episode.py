@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import sebvs
+from sebvs.data.check import check_dataset
 from sebvs.data.episode import EpisodeWriter, open_episode
 from sebvs.data.index import DatasetIndex, file_sha256, make_entry
 from sebvs.data.recording import EpisodeRecorder, TickJoiner, hop_latencies
@@ -201,6 +202,50 @@ def test_rows_go_to_their_episode_whatever_the_marker_order(tmp_path):
     row(4, 2)
     assert rec.close() == [] and rec.discarded == 1        # in progress at shutdown
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_rows_without_an_episode_number_that_beat_the_end_marker_go_to_the_next_episode(
+        tmp_path):
+    """Without the sim's episode number in a row, a recorder places it by tick: a row of
+    the next episode that beats this one's end marker lands here until the marker says
+    where the episode ended. Then it moves, with its latency, truth, modality and raw
+    events, and the episode keeps exactly its own rows."""
+    rec = EpisodeRecorder(tmp_path, "nav")
+
+    def row(t):
+        raw = {"x": np.full(t + 1, t, np.uint16), "y": np.zeros(t + 1, np.uint16),
+               "t": np.full(t + 1, 1000 * t, np.int64), "p": np.ones(t + 1, np.int8)}
+        return rec.row(t, rgb=np.full((4, 4, 3), t, np.uint8), t_sim=t / 10, action=[t, 0],
+                       latency={"sim->camera": float(t)}, truth={"centroid": [t, t]},
+                       modality="rgb", raw_events=raw, attrs={"event_scale": 0.5})
+    rec.start({"episode": 0, "seed": 5, "scene": "s", "config": {}}, 0)
+    for t in range(5):
+        row(t)                                     # ticks 3 and 4 are the next episode's
+    assert rec.end("time_limit", 2)[0]["frames"] == 3
+    rec.start({"episode": 1, "seed": 6, "scene": "s", "config": {}}, 3)
+    row(5)
+    assert rec.end("time_limit", 5)[0]["frames"] == 3 and rec.outside == 0
+    for name, ticks in (("episode_0000.h5", [0, 1, 2]), ("episode_0001.h5", [3, 4, 5])):
+        with open_episode(tmp_path / name) as ep:
+            assert list(ep.tick[:]) == ticks and list(ep.rgb[:, 0, 0, 0]) == ticks
+            assert list(ep.action[:, 0]) == ticks
+            assert list(ep.latency["sim->camera"]) == ticks
+            assert list(ep.truth["centroid"][:, 0]) == ticks
+            assert list(ep.modality) == [b"rgb"] * 3
+            off, x = ep.raw_events["offset"][:], ep.raw_events["x"][:]
+            assert [list(x[off[i]:off[i + 1]]) for i in range(3)] == \
+                [[t] * (t + 1) for t in ticks]
+            assert ep.attrs["event_scale"] == 0.5
+    assert check_dataset(tmp_path).ok
+
+
+def test_rows_past_a_late_end_that_are_no_longer_held_are_counted(tmp_path):
+    rec = EpisodeRecorder(tmp_path, "nav", max_orphans=2)
+    rec.start({"episode": 0, "seed": 5, "scene": "s", "config": {}}, 0)
+    for t in range(6):
+        rec.row(t, rgb=np.full((4, 4, 3), t, np.uint8), t_sim=t / 10, action=[t, 0])
+    assert rec.end("time_limit", 1)[0]["frames"] == 2
+    assert rec.outside == 2 and [t for t, _ in rec.orphans] == [4, 5]    # 2, 3 were let go
 
 
 def test_an_episode_taken_away_at_its_rename_is_still_indexed_and_the_next_row_kept(

@@ -210,6 +210,36 @@ class EpisodeWriter:
         self.frames += 1
         return i
 
+    @property
+    def ticks(self) -> list[int]:
+        """The ticks of the rows so far, in order (a copy)."""
+        return list(self._tick)
+
+    def truncate(self, n: int) -> None:
+        """Keep the first ``n`` rows and forget the rest: rows a recorder put in this
+        episode before learning where it ends (sebvs.data.recording). The next append
+        writes row ``n``."""
+        if not 0 <= n <= self.frames:
+            raise ValueError(f"truncate({n}): the episode has {self.frames} rows")
+        if n == self.frames:
+            return
+        del self._target[n:], self._t_sim[n:], self._tick[n:]
+        for columns in (self._latency, self._truth):
+            for key in list(columns):
+                rows = {i: v for i, v in columns[key].items() if i < n}
+                if rows:
+                    columns[key] = rows
+                else:
+                    del columns[key]        # no row left to give the column its shape
+        self._modality = {i: v for i, v in self._modality.items() if i < n}
+        if "events/offset" in self.f:
+            off = self.f["events/offset"]
+            self.raw_count = int(off[n])
+            off.resize(n + 1, axis=0)
+            for key in ("x", "y", "t", "p"):
+                self.f[f"events/{key}"].resize(self.raw_count, axis=0)
+        self.frames = n     # the image datasets keep their capacity; close() trims them
+
     # --- raw events: 1-D, variable length per frame -----------------------------------
     def _raw_init(self) -> None:
         kw = {"compression": self.compression} if self.compression else {}

@@ -14,6 +14,7 @@ import logging
 import os
 import shutil
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -82,6 +83,9 @@ class OpenEpisode:
     ended_at: float = 0.0                    # monotonic s when the end marker came
     last_tick: int = -1
     extra_attrs: dict = field(default_factory=dict)
+    # the last rows placed here by their tick alone (no episode number in them) before the
+    # end marker came: if it comes late, those past the end go to the next episode
+    by_tick: deque = field(default_factory=deque)
 
 
 class EpisodeRecorder:
@@ -90,7 +94,9 @@ class EpisodeRecorder:
     ``start(info, tick)`` / ``end(reason, tick)`` come from the sim's episode markers;
     ``row(tick, ...)`` from the joiner. An episode is finished (file renamed, index
     updated last) when its last tick was written, when a later row arrives, or
-    ``grace_s`` after its end marker if the last rows never complete.
+    ``grace_s`` after its end marker if the last rows never complete. A row without the
+    sim's episode number goes by tick; if the end marker comes after rows of the next
+    episode went there, they are moved to it (``_move_past_end``).
     """
 
     def __init__(self, root: str | Path, task: str | None = None, *, compression: str = "lzf",
@@ -142,9 +148,30 @@ class EpisodeRecorder:
             log.warning("episode end marker (tick %d) without a start; ignored", tick)
             return []
         ep.end_tick, ep.reason, ep.ended_at = tick, reason, time.monotonic()
+        if ep.last_tick > tick:
+            self._move_past_end(ep)
         if ep.last_tick >= tick:
             return [self._finish(ep)]
         return []
+
+    def _move_past_end(self, ep: OpenEpisode) -> None:
+        """Rows of the next episode that beat this one's end marker (it travels on its own
+        socket) and carried no episode number, so went by tick into this episode: take
+        them out and hold them for the next start marker, as rows that beat it are."""
+        ticks = ep.writer.ticks
+        keep = sum(t <= ep.end_tick for t in ticks)
+        held = [(t, f) for t, f in ep.by_tick if t > ep.end_tick]
+        ep.writer.truncate(keep)
+        ep.last_tick = ticks[keep - 1] if keep else -1
+        ep.by_tick.clear()
+        self.orphans = held + self.orphans      # the earliest ticks of what waits
+        over = max(0, len(self.orphans) - self.max_orphans)
+        del self.orphans[:over]
+        lost = len(ticks) - keep - len(held) + over
+        self.outside += lost
+        log.warning("episode %d: its end marker (tick %d) came after %d row(s) of the next "
+                    "episode; moved to it%s", ep.number, ep.end_tick, len(ticks) - keep,
+                    f" ({lost} no longer held: counted outside any episode)" if lost else "")
 
     # --- rows ----------------------------------------------------------------------
     def row(self, tick: int, **fields) -> list[dict]:
@@ -157,6 +184,7 @@ class EpisodeRecorder:
         for ep in list(self.open):
             if ep.end_tick is not None and tick > ep.end_tick:
                 done.append(self._finish(ep))      # later rows: its last ones are lost
+        given = dict(fields)
         sim_ep = fields.pop("episode", None)
         if sim_ep is not None:
             # the row says which episode it shows (camera meta): exact even when a row of
@@ -196,6 +224,10 @@ class EpisodeRecorder:
             ep.extra_attrs = attrs
         ep.writer.append(tick=tick, **fields)
         ep.last_tick = tick
+        if sim_ep is None and ep.end_tick is None:
+            ep.by_tick.append((tick, given))
+            if len(ep.by_tick) > self.max_orphans:
+                ep.by_tick.popleft()
         if ep.end_tick is not None and tick >= ep.end_tick:
             done.append(self._finish(ep))
         return [d for d in done if d]
