@@ -184,7 +184,6 @@ class EpisodeRecorder:
         for ep in list(self.open):
             if ep.end_tick is not None and tick > ep.end_tick:
                 done.append(self._finish(ep))      # later rows: its last ones are lost
-        given = dict(fields)
         sim_ep = fields.pop("episode", None)
         if sim_ep is not None:
             # the row says which episode it shows (camera meta): exact even when a row of
@@ -225,7 +224,7 @@ class EpisodeRecorder:
         ep.writer.append(tick=tick, **fields)
         ep.last_tick = tick
         if sim_ep is None and ep.end_tick is None:
-            ep.by_tick.append((tick, given))
+            ep.by_tick.append((tick, {**fields, "attrs": attrs}))
             if len(ep.by_tick) > self.max_orphans:
                 ep.by_tick.popleft()
         if ep.end_tick is not None and tick >= ep.end_tick:
