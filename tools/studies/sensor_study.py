@@ -313,17 +313,16 @@ def step_work(step: Step, epochs: float | None = None) -> float:
     return 1.0
 
 
-def epoch_shares(steps: list[Step]) -> dict[str, float]:
-    """Per task, the median share of their planned epochs that its done trainings ran: a
-    training left to run is expected to run that share of its plan (each task stops early
-    on its own patience: nav after 3 epochs without a better validation loss, the arm
-    after 4). A task with no training done has no entry."""
+def epoch_shares(records: list[tuple[Step, dict]]) -> dict[str, float]:
+    """Per task, the median share of their planned epochs that its done trainings ran
+    (each with its training_record): a training left to run is expected to run that share
+    of its plan (each task stops early on its own patience: nav after 3 epochs without a
+    better validation loss, the arm after 4). A task with no training done has no entry."""
     shares: dict[str, list[float]] = {}
-    for s in steps:
-        if (record := training_record(s)) is not None:
-            task = s.argv[s.argv.index("--task") + 1]
-            planned = int(s.argv[s.argv.index("--epochs") + 1])
-            shares.setdefault(task, []).append(record["epochs_run"] / planned)
+    for s, record in records:
+        task = s.argv[s.argv.index("--task") + 1]
+        planned = int(s.argv[s.argv.index("--epochs") + 1])
+        shares.setdefault(task, []).append(record["epochs_run"] / planned)
     return {task: sorted(v)[len(v) // 2] for task, v in shares.items()}
 
 
@@ -351,9 +350,9 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
         words = step.label.split()
         return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
 
-    took = {**took, **{s.label: float(r["seconds"]) for s in steps
-                       if (r := training_record(s)) is not None}}
-    shares = epoch_shares(steps)
+    records = [(s, r) for s in steps if (r := training_record(s)) is not None]
+    took = {**took, **{s.label: float(r["seconds"]) for s, r in records}}
+    shares = epoch_shares(records)
 
     def expected_epochs(step: Step) -> float | None:
         share = shares.get(step.argv[step.argv.index("--task") + 1])
