@@ -235,6 +235,7 @@ def test_loop_latency_leaves_the_warm_up_out_and_reads_the_targets(tmp_path):
     col.close()
     # chains that started 0.1 s after the first one: ticks 11..40, 2,125 us each
     assert (loop["chain"], loop["instances"]) == (LOOP, 30)
+    assert loop["since_ns"] == ticks[10]["sim"][5][0][2]     # tick 11's chain, the first kept
     assert loop["p50_ms"] == pytest.approx(2.125, abs=0.006)
     assert loop["p99_ms"] == pytest.approx(2.125, abs=0.006)     # the slow one left out
     assert loop["met"] is True

@@ -289,8 +289,8 @@ class ProfileCollector:
         renderers start on the first samples), beside LOOP_TARGETS_MS. A tick's action
         carries the stamps of the input that completed it, so where two inputs race (the
         frame and the events of rgb+event) each tick counts once, on the path of the later
-        one; "paths" says how many went each way, "chain" is the most frequent. None when
-        no chain closes a loop."""
+        one; "paths" says how many went each way, "chain" is the most frequent, "since_ns"
+        the start stamp from which chains count. None when no chain closes a loop."""
         by_actor: dict[str, list[str]] = collections.defaultdict(list)
         for c, inst in self.chain_instances.items():
             if _closes_loop(c) and inst:
@@ -313,7 +313,7 @@ class ProfileCollector:
         p50, p99 = (float(np.percentile(totals, q)) / 1e6 for q in (50, 99))
         return {"chain": max(counts, key=counts.get),
                 "paths": dict(sorted(counts.items(), key=lambda kv: -kv[1])),
-                "instances": len(totals), "warmup_s": warmup_s,
+                "instances": len(totals), "warmup_s": warmup_s, "since_ns": since,
                 "p50_ms": round(p50, 2), "p99_ms": round(p99, 2),
                 "target_p50_ms": LOOP_TARGETS_MS["p50"], "target_p99_ms": LOOP_TARGETS_MS["p99"],
                 "met": p50 <= LOOP_TARGETS_MS["p50"] and p99 <= LOOP_TARGETS_MS["p99"]}

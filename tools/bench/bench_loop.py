@@ -111,7 +111,7 @@ def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) ->
         raise RuntimeError(f"no closed loop observed after the warm-up "
                            f"(chains: {[c['chain'] for c in rep['chains']]})")
     instances = [i for c in loop["paths"] for i in collector.chain_instances[c]]
-    since = min(i[0][0][2] for i in instances) + int(warmup_s * 1e9)
+    since = loop["since_ns"]
     split = next(s for s in collector.split(since_ns=since) if s["chain"] == loop["chain"])
     if not split["hops"]:
         raise RuntimeError(f"no joined instance of {loop['chain']!r} after the warm-up")
