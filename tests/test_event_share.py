@@ -27,13 +27,15 @@ def test_shares_count_the_box_in_the_event_frames_resolution():
         assert np.allclose(area_m, 144 / 1600) and share_m[0] == 1.0
 
 
-def _dataset(root, sensor=None):
+def _dataset(root, sensor=None, camera="camera"):
     """Two 4-frame nav episodes (indoor: no target events, outdoor: 5 per target pixel),
-    a 2 x 2 px target at (12, 12) with a 10 px wide contrast step behind it."""
+    a 2 x 2 px target at (12, 12) with a 10 px wide contrast step behind it; recorded
+    through a camera actor of that name."""
     idx = DatasetIndex(root, "nav")
     topology = {} if sensor is None else {"topology": {
         "file": "nav_record.toml", "overrides": [],
-        "content": {"actors": {"camera": {"sensor": sensor}}}}}
+        "content": {"actors": {"sim": {"run": "actors.sim:Sim"},
+                               camera: {"run": "actors.camera:Camera", "sensor": sensor}}}}}
     for variant, inside in (("indoor", 0), ("outdoor", 5)):
         path = idx.path_for(idx.next_episode_number())
         w = EpisodeWriter(path, "nav", {"scene": "nav", "conditions": {"variant": variant},
@@ -62,6 +64,13 @@ def test_no_contrast_is_read_off_a_frame_the_emulator_did_not_see(tmp_path):
     assert all(r["edge_contrast_p50"] is not None for r in eight)
     assert all(r["edge_contrast_p50"] is None for r in linear)
     assert [r["density_ratio_p50"] for r in eight] == [r["density_ratio_p50"] for r in linear]
+
+
+def test_the_camera_is_found_by_what_it_runs_not_by_its_name(tmp_path):
+    with tool_module("studies/event_share") as tool:
+        _dataset(tmp_path / "eye", "physical", camera="eye")
+        rows = tool.summarise(tool.collect(tmp_path / "eye", ["variant"], 0.0))
+    assert all(r["edge_contrast_p50"] is None for r in rows)
 
 
 def test_the_tool_groups_by_scene_setting(tmp_path, capsys):

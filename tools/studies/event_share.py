@@ -91,10 +91,14 @@ def edge_contrast(rgb: np.ndarray, bbox: np.ndarray, image: np.ndarray) -> float
 
 
 def _camera_sensor(attrs) -> str:
-    """The camera sensor an episode was recorded through (its resolved topology's; the
-    camera's default, "ideal8", where the topology does not say)."""
+    """The camera sensor an episode was recorded through: its resolved topology's camera
+    actor (the one that runs actors.camera, whatever its name; else the one named
+    "camera"), and the camera's default, "ideal8", where the topology does not say."""
     topology = attrs.get("topology") or {}
-    camera = (topology.get("content") or {}).get("actors", {}).get("camera", {})
+    actors = (topology.get("content") or {}).get("actors", {})
+    cameras = [a for a in actors.values()
+               if isinstance(a, dict) and str(a.get("run", "")).startswith("actors.camera:")]
+    camera = cameras[0] if cameras else actors.get("camera", {})
     return camera.get("sensor", "ideal8") if isinstance(camera, dict) else "ideal8"
 
 
