@@ -145,8 +145,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "and tracking metrics",
                        description="Run a closed-loop topology to its end with the latency "
                                    "profiler attached; optionally swap the policy's modality "
-                                   "after --swap-after control ticks; print per-hop latency and the "
-                                   "tracker's metrics per episode and modality.")
+                                   "after --swap-after control ticks; print per-hop latency "
+                                   "and the tracker's metrics per episode and modality.")
     d.add_argument("topology")
     d.add_argument("--sensor", choices=SENSORS, default=None,
                    help="run this sensor pair with the checkpoints trained on it: physical "
