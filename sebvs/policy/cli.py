@@ -39,6 +39,7 @@ def _cmd_train(args) -> int:
                            else args.workers),
               cache=args.cache, threads=args.threads, val_fraction=args.val_fraction,
               patience=args.patience, lr=args.lr, device=args.device, stem=args.stem,
+              zero_subnormals=args.zero_subnormals,
               norm=Normalisation(size=args.size, event_clip=args.event_clip))
     except (FileNotFoundError, ValueError) as exc:   # bad data or settings: say so, no trace
         print(f"sebvs train: {exc}", file=sys.stderr)
@@ -127,6 +128,11 @@ def register(subparsers) -> None:
     t.add_argument("--device", default="cpu",
                    help="torch device, e.g. cuda for the paper preset (default cpu; "
                         "bit-reproducible on cpu only)")
+    t.add_argument("--zero-subnormals", action="store_true",
+                   help="zero the weights' and Adam's subnormal floats (below 1.2e-38) after "
+                        "every step: weight decay drives dead units' weights there, where a "
+                        "CPU computes several times slower (sebvs/policy/subnormal.py); "
+                        "changes the weights, so a recipe says whether it is on")
     t.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     t.set_defaults(func=_cmd_train)
 

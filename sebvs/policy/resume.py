@@ -19,6 +19,9 @@ RESUME_VERSION = 1
 # settings that change how long the epochs take but not the weights (tested: the loader
 # workers and the frames cache leave every weight bit for bit the same)
 NOT_IN_FINGERPRINT = ("num_workers", "cache")
+# settings added after resume files were written: in the fingerprint only where they differ
+# from their default, so that a file written before them still continues its training
+ADDED_SETTINGS = {"zero_subnormals": False}
 
 
 def resume_path(out: str | Path, task: str, modality: str) -> Path:
@@ -27,7 +30,8 @@ def resume_path(out: str | Path, task: str, modality: str) -> Path:
 
 def fingerprint(settings, modality: str, data_hash: str) -> str:
     """What must match for a saved state to continue this training."""
-    fields = {k: v for k, v in asdict(settings).items() if k not in NOT_IN_FINGERPRINT}
+    fields = {k: v for k, v in asdict(settings).items() if k not in NOT_IN_FINGERPRINT
+              and not (k in ADDED_SETTINGS and v == ADDED_SETTINGS[k])}
     return json.dumps({"version": RESUME_VERSION, "modality": modality, "data": data_hash,
                        "settings": fields}, sort_keys=True, default=str)
 

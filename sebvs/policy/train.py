@@ -26,6 +26,7 @@ from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, availab
 from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
                      check_modality)
 from .resume import fingerprint, load_state, resume_path, save_state
+from .subnormal import ZeroSubnormals
 
 
 @dataclass
@@ -48,6 +49,9 @@ class TrainSettings:
     threads: int = 0              # torch.set_num_threads; 0 leaves torch's default
     device: str = "cpu"           # "cuda" for the paper preset; bit-reproducible on CPU only
     stem: str = "patch"           # "patch" (the paper's), "conv", "dual", "gated" (model.STEMS)
+    # zero the weights' and Adam's subnormal floats after every step (subnormal.py), which
+    # a CPU computes with through a slow path; it changes the weights, so a recipe names it
+    zero_subnormals: bool = False
     norm: Normalisation = field(default_factory=Normalisation)
 
 
@@ -91,8 +95,9 @@ def _collate(batch):
 
 
 def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True,
-           device: str = "cpu"):
-    """One pass; trains if an optimizer is given. Returns the mean loss per sample."""
+           device: str = "cpu", after_step=None):
+    """One pass; trains if an optimizer is given, calling ``after_step()`` (if given) after
+    each of its steps. Returns the mean loss per sample."""
     import torch
     from tqdm import tqdm
     training = optimizer is not None
@@ -108,6 +113,8 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
+                if after_step is not None:
+                    after_step()
             total += loss.item() * len(x)
             n += len(x)
             bar.set_postfix(loss=f"{total / n:.4g}")
@@ -200,6 +207,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                                                                 **s.plateau)
                      if s.plateau else None)
         criterion = torch.nn.MSELoss() if s.loss == "mse" else torch.nn.SmoothL1Loss()
+        zeroer = ZeroSubnormals(model, optimizer) if s.zero_subnormals else None
         log(f"train {s.task}-{modality}: {count_parameters(model)} parameters, "
             f"{len(train_set)} train frames ({len(train_eps)} episodes), "
             f"{len(val_set)} validation frames ({len(val_eps)} episodes), size {s.norm.size}")
@@ -226,12 +234,14 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         for epoch in range(first, s.epochs + 1):
             tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
             lr = optimizer.param_groups[0]["lr"]
+            zeroed_before = zeroer.total if zeroer else 0
             tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress,
-                        s.device)
+                        s.device, after_step=zeroer)
             va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress, s.device)
             rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
                          "val_loss": va, "lr": lr})
-            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}")
+            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}"
+                + (f"  subnormals zeroed {zeroer.total - zeroed_before:,}" if zeroer else ""))
             if va < best:
                 best, bad = va, 0
                 best_state = {k: v.detach().to("cpu", copy=True)
@@ -272,6 +282,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                            "epochs_run": len(rows),
                            "patience": s.patience, "plateau": s.plateau,
                            "best_val_loss": best, "seed": s.seed, "max_frames": s.max_frames,
+                           **({"zero_subnormals": True} if s.zero_subnormals else {}),
                            "seconds": round(seconds_before + time.monotonic() - t0, 2),
                            **({"resumed_after_epochs": resumed} if resumed else {})},
               "torch": torch.__version__, "numpy": np.__version__}

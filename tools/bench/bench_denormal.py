@@ -8,9 +8,11 @@ the CPU computes with them through slow microcode. This measures it on a saved t
 
   - how many floats of the model, and of Adam's state, are subnormal, and in which tensors;
   - the time of one training step (forward, backward, Adam step on a batch of random
-    inputs) and of one inference (batch 1), with the CPU's flush-to-zero off (how the
-    project trains and runs) and on (`torch.set_flush_denormal(True)`), side by side in
-    every repeat (the order alternating), medians over repeats;
+    inputs) and of one inference (batch 1), three ways side by side in every repeat (the
+    order turning), medians over repeats: as trained (the CPU's flush-to-zero off, how the
+    project trains and runs by default), `flush` (`torch.set_flush_denormal(True)`), and
+    `zeroed` (`sebvs train --zero-subnormals`: the subnormals of the weights and of Adam's
+    state set to zero before the step and after it, that work timed with the step);
   - the same steps on a freshly initialised model of the same architecture: the speed
     without subnormals;
   - whether flushing changes the inference outputs (bitwise, on the same inputs).
@@ -35,13 +37,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from benchio import print_report  # noqa: E402
+from sebvs.policy.subnormal import count_subnormals, zero_subnormals_  # noqa: E402
 
-SMALLEST_NORMAL = 1.1754943508222875e-38      # float32
-
-
-def subnormals(t) -> int:
-    """How many entries of float tensor ``t`` are non-zero and below the smallest normal."""
-    return int(((t != 0) & (t.abs() < SMALLEST_NORMAL)).sum())
+MODES = (("saved", "as_trained"), ("saved", "flush"), ("saved", "zeroed"),
+         ("fresh", "as_trained"))
 
 
 def load(path: Path):
@@ -73,11 +72,11 @@ def fresh_like(model):
 
 def census(model, optimizer_state) -> dict:
     """Subnormal counts: the model's, Adam's, and the tensors that hold the most."""
-    per_tensor = {k: (subnormals(v), v.numel()) for k, v in model.state_dict().items()
+    per_tensor = {k: (count_subnormals(v), v.numel()) for k, v in model.state_dict().items()
                   if v.is_floating_point()}
     adam = 0
     if optimizer_state is not None:
-        adam = sum(subnormals(v) for s in optimizer_state["state"].values()
+        adam = sum(count_subnormals(v) for s in optimizer_state["state"].values()
                    for v in s.values() if hasattr(v, "is_floating_point")
                    and v.is_floating_point() and v.dim() > 0)
     top = sorted(((k, n, size) for k, (n, size) in per_tensor.items() if n),
@@ -88,9 +87,11 @@ def census(model, optimizer_state) -> dict:
             "tensors": {k: f"{n} of {size}" for k, n, size in top}}
 
 
-def step_ms(model, optimizer_state, lr, weight_decay, x, y) -> float:
-    """One training step's time (forward, backward, Adam step), after one untimed step;
-    the model and optimizer are copies, so every call starts from the same weights."""
+def step_ms(model, optimizer_state, lr, weight_decay, x, y, zero: bool = False) -> float:
+    """One training step's time (forward, backward, Adam step; with ``zero``, the
+    subnormals zeroed after it as training does, and once before the untimed first step),
+    after one untimed step; the model and optimizer are copies, so every call starts from
+    the same weights."""
     import copy
 
     import torch
@@ -98,12 +99,16 @@ def step_ms(model, optimizer_state, lr, weight_decay, x, y) -> float:
     opt = torch.optim.Adam(m.parameters(), lr=lr, weight_decay=weight_decay)
     if optimizer_state is not None:
         opt.load_state_dict(copy.deepcopy(optimizer_state))
+    if zero:
+        zero_subnormals_(m, opt)
     times = []
     for _ in range(2):
         t = time.perf_counter()
         opt.zero_grad()
         torch.nn.functional.mse_loss(m(x), y).backward()
         opt.step()
+        if zero:
+            zero_subnormals_(m, opt)
         times.append(time.perf_counter() - t)
     return times[-1] * 1e3
 
@@ -143,36 +148,38 @@ def main(argv=None) -> int:
     x = torch.rand(args.batch, *shape, generator=g)
     y = 0.1 * torch.rand(args.batch, 6 if model.task == "arm" else 2, generator=g)
     fresh = fresh_like(model)
-    runs = {(name, flush): {"step_ms": [], "infer_ms": []}
-            for name in ("saved", "fresh") for flush in (False, True)}
+    zeroed = fresh_like(model)
+    zeroed.load_state_dict(model.state_dict())
+    zero_subnormals_(zeroed)
+    runs = {mode: {"step_ms": [], "infer_ms": []} for mode in MODES}
     outputs = {}
     try:
         for r in range(args.repeats):
-            order = sorted(runs, key=lambda k: k[1] != bool(r % 2))   # alternate the order
-            for name, flush in order:
-                torch.set_flush_denormal(flush)
+            for name, how in MODES[r % len(MODES):] + MODES[:r % len(MODES)]:   # turn
+                torch.set_flush_denormal(how == "flush")
                 m, state = (model, adam) if name == "saved" else (fresh, None)
-                runs[name, flush]["step_ms"].append(step_ms(m, state, lr, wd, x, y))
-                ms, out = infer_ms(m, x[:8])
-                runs[name, flush]["infer_ms"].append(ms)
-                outputs[name, flush] = out
+                runs[name, how]["step_ms"].append(
+                    step_ms(m, state, lr, wd, x, y, zero=how == "zeroed"))
+                ms, out = infer_ms(zeroed if how == "zeroed" else m, x[:8])
+                runs[name, how]["infer_ms"].append(ms)
+                outputs[name, how] = out
     finally:
         torch.set_flush_denormal(False)
-    med = {f"{name}_{'flush' if flush else 'as_trained'}":
-           {k: round(statistics.median(v), 2) for k, v in t.items()}
-           for (name, flush), t in runs.items()}
-    saved, flushed = med["saved_as_trained"], med["saved_flush"]
+    med = {f"{name}_{how}": {k: round(statistics.median(v), 2) for k, v in t.items()}
+           for (name, how), t in runs.items()}
+    saved = med["saved_as_trained"]
     report = {
         "state": str(args.state), **about, "threads": args.threads, "batch": args.batch,
         "repeats": args.repeats,
         "subnormals": census(model, adam),
         "flush_to_zero_supported": torch.set_flush_denormal(False),
         "median_ms": med,
-        "step_slowdown_vs_flushed": round(saved["step_ms"] / flushed["step_ms"], 2),
-        "step_slowdown_vs_fresh": round(saved["step_ms"] / med["fresh_as_trained"]["step_ms"],
-                                        2),
-        "inference_outputs_identical_when_flushed": bool(
-            torch.equal(outputs["saved", False], outputs["saved", True])),
+        "step_slowdown": {how: round(saved["step_ms"] / med[f"saved_{how}"]["step_ms"], 2)
+                          for how in ("flush", "zeroed")}
+        | {"fresh": round(saved["step_ms"] / med["fresh_as_trained"]["step_ms"], 2)},
+        "inference_outputs_identical": {
+            how: bool(torch.equal(outputs["saved", "as_trained"], outputs["saved", how]))
+            for how in ("flush", "zeroed")},
     }
     print_report(report, args.json)
     return 0

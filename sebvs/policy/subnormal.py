@@ -1,0 +1,58 @@
+"""Float32 subnormals in a training's weights and optimizer state.
+
+Weights that get no gradient from the data (dead units) decay under weight decay until
+they are subnormal: non-zero, below float32's smallest normal (1.18e-38). Added to a sum of
+normal numbers they change nothing, but a CPU multiplies them through slow microcode: a
+nav ERP training step with 17 % of its weights subnormal took 5.8x as long as with them
+flushed (tools/bench/bench_denormal.py; docs/study_sensors_log.md, 2026-11-27).
+
+Zeroing them after every optimizer step (`sebvs train --zero-subnormals`) is the software
+form of the CPU's flush-to-zero. It does the same on every machine and at any thread
+count, which the CPU's mode does not: that is a per-thread register (x86's MXCSR;
+`torch.set_flush_denormal` sets the calling thread's), and it also flushes activations.
+"""
+from __future__ import annotations
+
+
+def subnormal_mask(t):
+    """Where floating tensor ``t`` is subnormal: non-zero, below its dtype's smallest normal."""
+    import torch
+    return (t != 0) & (t.abs() < torch.finfo(t.dtype).tiny)
+
+
+def count_subnormals(t) -> int:
+    return int(subnormal_mask(t).sum())
+
+
+def _float_tensors(model, optimizer=None):
+    yield from (t for t in model.state_dict().values() if t.is_floating_point())
+    if optimizer is not None:
+        for state in optimizer.state.values():
+            yield from (v for v in state.values()
+                        if hasattr(v, "is_floating_point") and v.is_floating_point()
+                        and v.dim() > 0)
+
+
+def zero_subnormals_(model, optimizer=None) -> int:
+    """Set every subnormal entry of the model's floating parameters and buffers, and of the
+    optimizer's per-parameter state (Adam's moments), to zero in place; how many were.
+    One device sync per call (the count), not one per tensor."""
+    import torch
+    counts = []
+    with torch.no_grad():
+        for t in _float_tensors(model, optimizer):
+            mask = subnormal_mask(t)
+            counts.append(mask.sum())
+            t.masked_fill_(mask, 0.0)
+    return int(torch.stack(counts).sum()) if counts else 0
+
+
+class ZeroSubnormals:
+    """``zero_subnormals_(model, optimizer)`` as a callable for after each optimizer step;
+    ``total`` counts the floats it zeroed."""
+
+    def __init__(self, model, optimizer):
+        self.model, self.optimizer, self.total = model, optimizer, 0
+
+    def __call__(self) -> None:
+        self.total += zero_subnormals_(self.model, self.optimizer)
