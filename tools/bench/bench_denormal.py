@@ -146,7 +146,9 @@ def main(argv=None) -> int:
     g = torch.Generator().manual_seed(0)
     shape = (model.in_channels, model.size, model.size)
     x = torch.rand(args.batch, *shape, generator=g)
-    y = 0.1 * torch.rand(args.batch, 6 if model.task == "arm" else 2, generator=g)
+    with torch.no_grad():
+        outputs_per_item = model.eval()(x[:1]).shape[1]
+    y = 0.1 * torch.rand(args.batch, outputs_per_item, generator=g)
     fresh = fresh_like(model)
     zeroed = fresh_like(model)
     zeroed.load_state_dict(model.state_dict())
