@@ -234,13 +234,14 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         for epoch in range(first, s.epochs + 1):
             tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
             lr = optimizer.param_groups[0]["lr"]
-            zeroed_before = zeroer.total if zeroer else 0
+            zeroed_before, epoch_t0 = (zeroer.total if zeroer else 0), time.monotonic()
             tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress,
                         s.device, after_step=zeroer)
             va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress, s.device)
             rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
                          "val_loss": va, "lr": lr})
-            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}"
+            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}  "
+                f"{time.monotonic() - epoch_t0:,.0f} s"
                 + (f"  subnormals zeroed {zeroer.total - zeroed_before:,}" if zeroer else ""))
             if va < best:
                 best, bad = va, 0
