@@ -7,7 +7,7 @@ import pytest
 
 from tests.tools_loader import tool_module
 
-torch = pytest.importorskip("torch")
+import torch
 
 
 def _model_with_subnormals():

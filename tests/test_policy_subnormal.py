@@ -6,15 +6,14 @@ import json
 import re
 
 import pytest
+import torch
 
-torch = pytest.importorskip("torch")
-
-from sebvs.policy.inputs import Normalisation, channels  # noqa: E402
-from sebvs.policy.model import ERP  # noqa: E402
-from sebvs.policy.resume import fingerprint  # noqa: E402
-from sebvs.policy.subnormal import ZeroSubnormals, count_subnormals, zero_subnormals_  # noqa: E402
-from sebvs.policy.train import _epoch, settings_for, train  # noqa: E402
-from tests.policy_data import make_dataset  # noqa: E402
+from sebvs.policy.inputs import Normalisation, channels
+from sebvs.policy.model import ERP
+from sebvs.policy.resume import fingerprint
+from sebvs.policy.subnormal import ZeroSubnormals, count_subnormals, zero_subnormals_
+from sebvs.policy.train import _epoch, settings_for, train
+from tests.policy_data import make_dataset
 
 torch.set_num_threads(1)
 
