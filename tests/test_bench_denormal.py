@@ -3,11 +3,9 @@ reads a resume file's model and settings back."""
 import json
 from dataclasses import replace
 
-import pytest
+import torch
 
 from tests.tools_loader import tool_module
-
-import torch
 
 
 def _model_with_subnormals():
