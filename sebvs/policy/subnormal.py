@@ -24,13 +24,19 @@ def count_subnormals(t) -> int:
     return int(subnormal_mask(t).sum())
 
 
+def state_tensors(per_parameter_states):
+    """The floating tensors of an optimizer's per-parameter states (``optimizer.state``'s
+    values, or a state dict's ``["state"]`` values): Adam's moments, not its step count."""
+    for state in per_parameter_states:
+        yield from (v for v in state.values()
+                    if hasattr(v, "is_floating_point") and v.is_floating_point()
+                    and v.dim() > 0)
+
+
 def _float_tensors(model, optimizer=None):
     yield from (t for t in model.state_dict().values() if t.is_floating_point())
     if optimizer is not None:
-        for state in optimizer.state.values():
-            yield from (v for v in state.values()
-                        if hasattr(v, "is_floating_point") and v.is_floating_point()
-                        and v.dim() > 0)
+        yield from state_tensors(optimizer.state.values())
 
 
 def zero_subnormals_(model, optimizer=None) -> int:

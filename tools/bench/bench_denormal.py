@@ -37,7 +37,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from benchio import print_report  # noqa: E402
-from sebvs.policy.subnormal import count_subnormals, zero_subnormals_  # noqa: E402
+from sebvs.policy.subnormal import (count_subnormals, state_tensors,  # noqa: E402
+                                    zero_subnormals_)
 
 MODES = (("saved", "as_trained"), ("saved", "flush"), ("saved", "zeroed"),
          ("fresh", "as_trained"))
@@ -76,9 +77,7 @@ def census(model, optimizer_state) -> dict:
                   if v.is_floating_point()}
     adam = 0
     if optimizer_state is not None:
-        adam = sum(count_subnormals(v) for s in optimizer_state["state"].values()
-                   for v in s.values() if hasattr(v, "is_floating_point")
-                   and v.is_floating_point() and v.dim() > 0)
+        adam = sum(count_subnormals(v) for v in state_tensors(optimizer_state["state"].values()))
     top = sorted(((k, n, size) for k, (n, size) in per_tensor.items() if n),
                  key=lambda r: -r[1])[:8]
     return {"model": sum(n for n, _ in per_tensor.values()),
@@ -176,9 +175,9 @@ def main(argv=None) -> int:
         "subnormals": census(model, adam),
         "flush_to_zero_supported": torch.set_flush_denormal(False),
         "median_ms": med,
-        "step_slowdown": {how: round(saved["step_ms"] / med[f"saved_{how}"]["step_ms"], 2)
-                          for how in ("flush", "zeroed")}
-        | {"fresh": round(saved["step_ms"] / med["fresh_as_trained"]["step_ms"], 2)},
+        "step_slowdown": {name: round(saved["step_ms"] / med[key]["step_ms"], 2)
+                          for name, key in (("flush", "saved_flush"), ("zeroed", "saved_zeroed"),
+                                            ("fresh", "fresh_as_trained"))},
         "inference_outputs_identical": {
             how: bool(torch.equal(outputs["saved", "as_trained"], outputs["saved", how]))
             for how in ("flush", "zeroed")},
