@@ -21,7 +21,9 @@ Sizes: the default (5 runs x 4 eval episodes, 8 recorded, 4 s each) and --quick 
 small, so a topology's fixed start-up (processes, imports, MuJoCo compile, GL contexts:
 about 1.5 s, paid once per worker) weighs on them; `--size paper` records issue 18's
 yardstick instead, the paper's nav set of 70 episodes of 30 s (about 6 min at one worker
-here), where it is amortised as in a real recording (record only: `--jobs record`).
+here), where it is amortised as in a real recording (record only: `--jobs record`);
+`--size cores` records 4 episodes of 10 s per core (64 on 16 cores), the size at which a
+many-core machine's top worker count still plays whole waves after its start-up.
 
 startup  where a worker's time goes before and between its episodes (issue 37), from one
          `sebvs record --workers W` per worker count (3 episodes per worker): the driver
@@ -40,7 +42,7 @@ Targets (issue 17): speed-up at 2 workers >= 1.7x on a 2-core machine, >= 0.8 x 
 16 cores; Ray's overhead per episode < 5 % of an episode's wall time. Issue 37: per-worker
 start-up <= 1 s at 2 workers here.
 
-    tools/bench/bench_scale.py [--quick | --size paper] [--jobs eval,record,startup] [--repeats N]
+    tools/bench/bench_scale.py [--quick | --size paper|cores] [--jobs eval,record,startup] [--repeats N]
                          [--json FILE] [--no-ray]
 """
 from __future__ import annotations
@@ -65,7 +67,10 @@ from tools.benchio import print_report  # noqa: E402
 # episodes and episode seconds per job: eval (per run) and record
 SIZES = {"quick": {"eval": (2, 2.0), "record": (4, 2.0)},
          "default": {"eval": (4, 4.0), "record": (8, 4.0)},
-         "paper": {"eval": (4, 4.0), "record": (70, 30.0)}}
+         "paper": {"eval": (4, 4.0), "record": (70, 30.0)},
+         # four recorded episodes per core: at every worker count each worker plays whole
+         # waves, and the top count still plays four episodes after its start-up
+         "cores": {"eval": (4, 4.0), "record": (4 * (os.cpu_count() or 1), 10.0)}}
 
 
 def worker_counts() -> list[int]:
@@ -268,8 +273,9 @@ def main() -> int:
                     help="2 eval episodes per run and 4 recorded, 2 s each, one repeat")
     ap.add_argument("--size", choices=sorted(SIZES), default="default",
                     help="episodes per job: default 4 per eval run and 8 recorded, 4 s each; "
-                         "paper: 70 recorded of 30 s (issue 18's nav set; the eval job "
-                         "keeps the default size)")
+                         "paper: 70 recorded of 30 s (issue 18's nav set); cores: 4 "
+                         "recorded of 10 s per core (64 on 16 cores), for a many-core "
+                         "machine's speed-up (both keep the eval job's default size)")
     ap.add_argument("--jobs", default="eval,record,startup",
                     help="which jobs, comma-separated (eval, record, startup; default all)")
     ap.add_argument("--repeats", type=int, default=0,
