@@ -183,6 +183,14 @@ def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch)
         assert f"left: {seed1.label} (~10 min, from 1 done like it)" in text   # half the rows
         assert f"left: {flicker0.label}\n" in text + "\n"          # no flicker run done yet
         assert "steps have no estimate yet" in text
+        # at 30 Hz none has run: scaled from the slower rate's, by simulated seconds, and
+        # marked as the lower bound it is (a tick costs more at a faster rate)
+        main30 = next(s for s in evals if s.label == "eval nav 30 Hz seed 0 main")
+        text = study.status_text(evals, ["eval"], {main0.label: 1200.0})
+        assert f"left: {main30.label} (>= 20 min, scaled by simulated seconds from 1 done " \
+               f"at a slower rate)" in text
+        assert "estimated wall time left: at least " in text
+        assert "evaluation estimates are lower bounds" in text
 
 
 def test_status_times_a_training_by_its_own_record_and_the_epochs_it_ran(tmp_path, monkeypatch):

@@ -342,13 +342,22 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     """What is done (with its wall time) and what is left, each left step with an
     estimate: the median time per unit of work (step_work) of the done steps of its kind,
     task, rate (and evaluation group), times its work; a training with none of those done
-    is scaled from every done training. A done training is timed by its own record (every
+    is scaled from every done training, an evaluation with none from those of its task and
+    group at a slower control rate (a lower bound, marked >=). A done training is timed by
+    its own record (every
     resumed part, see training_record), which the log misses for a part stopped before
     the driver wrote exit lines; one left is sized by the epochs its task's done ones
     ran. Trainings run ``parallel`` at once."""
     def group(step: Step) -> str:
         words = step.label.split()
         return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
+
+    def slower_like(done: Step, left: Step) -> bool:
+        """An evaluation of the same task and group at a slower control rate: a tick
+        costs the same or less there, so scaling by simulated seconds gives a lower
+        bound."""
+        d, l = done.label.split(), left.label.split()
+        return d[1] == l[1] and d[-1] == l[-1] and int(d[2]) < int(l[2])
 
     records = [(s, r) for s in steps if (r := training_record(s)) is not None]
     took = {**took, **{s.label: float(r["seconds"]) for s, r in records}}
@@ -366,7 +375,7 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
                      if d.label in took and work[d.label] > 0)
         return per[len(per) // 2] if per else None
 
-    lines, total, unknown = [], 0.0, 0
+    lines, total, unknown, bounds = [], 0.0, 0, 0
     for kind in kinds:
         mine = [s for s in steps if s.kind == kind]
         done = [s for s in mine if is_done(s)]
@@ -378,19 +387,27 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
             if s in done:
                 continue
             like = [d for d in done if group(d) == group(s) and d.label in took]
-            per, how = rate(like), f"from {len(like)} done like it"
+            per, how, about = rate(like), f"from {len(like)} done like it", "~"
             if per is None and kind == "train":
                 scaled = [d for d in done if d.label in took]
                 per, how = rate(scaled), f"scaled by frames from {len(scaled)} done trainings"
+            if per is None and kind == "eval":
+                slower = [d for d in done if d.label in took and slower_like(d, s)]
+                per, how, about = rate(slower), (f"scaled by simulated seconds from "
+                                                 f"{len(slower)} done at a slower rate"), ">= "
+                bounds += per is not None
             guess = per * work[s.label] if per is not None else None
             if guess is None:
                 unknown += 1
             else:
                 total += guess / (parallel if kind == "train" else 1)
             lines.append(f"        left: {s.label}" + (
-                f" (~{guess / 60:.0f} min, {how})" if guess is not None else ""))
-    lines.append(f"estimated wall time left: {total / 3600:.1f} h (trainings {parallel} at "
-                 f"once)" + (f"; {unknown} steps have no estimate yet" if unknown else ""))
+                f" ({about}{guess / 60:.0f} min, {how})" if guess is not None else ""))
+    lines.append(f"estimated wall time left: {'at least ' if bounds else ''}"
+                 f"{total / 3600:.1f} h (trainings {parallel} at once)"
+                 + (f"; {bounds} evaluation estimates are lower bounds (no evaluation has "
+                    f"run at their control rate yet)" if bounds else "")
+                 + (f"; {unknown} steps have no estimate yet" if unknown else ""))
     return "\n".join(lines)
 
 
