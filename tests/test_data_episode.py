@@ -248,6 +248,18 @@ def test_rows_past_a_late_end_that_are_no_longer_held_are_counted(tmp_path):
     assert rec.outside == 2 and [t for t, _ in rec.orphans] == [4, 5]    # 2, 3 were let go
 
 
+def test_rows_before_any_start_beyond_the_limit_are_counted_and_the_rest_kept(tmp_path):
+    rec = EpisodeRecorder(tmp_path, "nav", max_orphans=2)
+    for t in range(4):                             # the start marker is late: all held
+        rec.row(t, rgb=np.full((4, 4, 3), t, np.uint8), t_sim=t / 10, action=[t, 0],
+                episode=0)
+    assert rec.outside == 2 and [t for t, _ in rec.orphans] == [2, 3]    # 0, 1 let go
+    rec.start({"episode": 0, "seed": 5, "scene": "s", "config": {}}, 0)
+    assert rec.end("time_limit", 3)[0]["frames"] == 2 and rec.outside == 2
+    with open_episode(tmp_path / "episode_0000.h5") as ep:
+        assert list(ep.tick[:]) == [2, 3]
+
+
 def test_an_episode_taken_away_at_its_rename_is_still_indexed_and_the_next_row_kept(
         tmp_path, monkeypatch):
     """A fan-out driver adopts a worker's episode file the moment it has its final name

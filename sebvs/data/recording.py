@@ -164,14 +164,22 @@ class EpisodeRecorder:
         ep.writer.truncate(keep)
         ep.last_tick = ticks[keep - 1] if keep else -1
         ep.by_tick.clear()
-        self.orphans = held + self.orphans      # the earliest ticks of what waits
-        over = max(0, len(self.orphans) - self.max_orphans)
-        del self.orphans[:over]
+        over = self._hold(held, first=True)    # the earliest ticks of what waits
         lost = len(ticks) - keep - len(held) + over
-        self.outside += lost
+        self.outside += lost - over
         log.warning("episode %d: its end marker (tick %d) came after %d row(s) of the next "
                     "episode; moved to it%s", ep.number, ep.end_tick, len(ticks) - keep,
                     f" ({lost} no longer held: counted outside any episode)" if lost else "")
+
+    def _hold(self, rows: list[tuple[int, dict]], first: bool = False) -> int:
+        """Hold rows for a start marker still in flight (before those held already when
+        ``first``: earlier ticks). Beyond max_orphans the earliest are dropped and counted
+        outside any episode; returns how many."""
+        self.orphans = rows + self.orphans if first else self.orphans + rows
+        over = max(0, len(self.orphans) - self.max_orphans)
+        del self.orphans[:over]
+        self.outside += over
+        return over
 
     # --- rows ----------------------------------------------------------------------
     def row(self, tick: int, **fields) -> list[dict]:
@@ -200,10 +208,7 @@ class EpisodeRecorder:
                 self.outside += 1                  # of an episode already finished
             else:
                 # maybe the next episode's start marker is still in flight: hold a few rows
-                self.orphans.append((tick, {**fields, "episode": sim_ep}))
-                if len(self.orphans) > self.max_orphans:
-                    self.orphans.pop(0)
-                    self.outside += 1
+                self._hold([(tick, {**fields, "episode": sim_ep})])
             return [d for d in done if d]
         attrs = fields.pop("attrs", None) or {}
         if ep.writer is None:
