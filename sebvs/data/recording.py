@@ -164,9 +164,9 @@ class EpisodeRecorder:
         ep.writer.truncate(keep)
         ep.last_tick = ticks[keep - 1] if keep else -1
         ep.by_tick.clear()
-        over = self._hold(held, first=True)    # the earliest ticks of what waits
-        lost = len(ticks) - keep - len(held) + over
-        self.outside += lost - over
+        unheld = len(ticks) - keep - len(held)  # past by_tick's bound: never held
+        self.outside += unheld
+        lost = unheld + self._hold(held, first=True)    # the earliest ticks of what waits
         log.warning("episode %d: its end marker (tick %d) came after %d row(s) of the next "
                     "episode; moved to it%s", ep.number, ep.end_tick, len(ticks) - keep,
                     f" ({lost} no longer held: counted outside any episode)" if lost else "")
