@@ -58,8 +58,12 @@ def test_snapshot_of_this_machine_matches_itself(tmp_path):
 
 
 def test_compare_rejects_a_file_that_is_not_a_snapshot(tmp_path):
-    bad = tmp_path / "bad.npz"
-    bad.write_text("not a zip")
-    done = subprocess.run([sys.executable, str(TOOL), "compare", str(bad), str(bad)],
-                          cwd=ROOT, capture_output=True, text=True)
-    assert done.returncode == 2 and "not a snapshot" in done.stderr
+    text, truncated, single = (tmp_path / n for n in ("bad.npz", "cut.npz", "one.npy"))
+    text.write_text("not a zip")
+    np.savez(truncated, a=np.zeros(1000))
+    truncated.write_bytes(truncated.read_bytes()[:100])        # a zip's start, cut short
+    np.save(single, np.zeros(3))
+    for bad in (text, truncated, single):
+        done = subprocess.run([sys.executable, str(TOOL), "compare", str(bad), str(bad)],
+                              cwd=ROOT, capture_output=True, text=True)
+        assert done.returncode == 2 and "not a snapshot" in done.stderr, done.stderr[-800:]

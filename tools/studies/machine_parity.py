@@ -30,6 +30,7 @@ import json
 import os
 import platform
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -125,11 +126,16 @@ def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict:
 
 def load(path: str) -> dict[str, np.ndarray]:
     try:
-        with np.load(path, allow_pickle=False) as f:
-            return {k: f[k] for k in f.files}
-    except (OSError, ValueError) as e:
-        print(f"machine_parity: {path}: not a snapshot ({e})", file=sys.stderr)
+        f = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        f, why = None, str(e)
+    else:
+        why = "one array, not an NPZ of named arrays"
+    if not isinstance(f, np.lib.npyio.NpzFile):
+        print(f"machine_parity: {path}: not a snapshot ({why})", file=sys.stderr)
         raise SystemExit(2)
+    with f:
+        return {k: f[k] for k in f.files}
 
 
 def main() -> int:
