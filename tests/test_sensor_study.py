@@ -133,16 +133,15 @@ def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path, monkeypat
     with tool_module("studies/sensor_study") as study:
         fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100})
         steps = [s for s in study.plan_steps(tmp_path, 2, {"nav10"}) if s.kind == "train"]
-        log = tmp_path / "log.txt"
-        log.write_text("\n".join([
-            f"=== 2026-11-26 22:00:00 {steps[0].label}", "cmd", "=== exit 0 after 600 s",
-            f"=== 2026-11-26 22:00:00 {steps[1].label}", "cmd",        # stopped: no exit
-            f"=== 2026-11-27 09:00:00 {steps[1].label}", "cmd",      # side by side
-            f"=== 2026-11-27 09:00:00 {steps[2].label}", "cmd",
-            f"=== exit 0 after 900 s: {steps[2].label}",
-            f"=== exit 0 after 300 s: {steps[1].label}"]))
-        took = study.step_seconds(log)
-        assert took == {steps[0].label: 600.0, steps[1].label: 300.0, steps[2].label: 900.0}
+        ledger = tmp_path / "steps.jsonl"
+        for step, seconds, code in [(steps[0], 600.4, 0), (steps[1], 100.0, -15),
+                                    (steps[2], 900.0, 0), (steps[1], 200.0, 0)]:
+            study.append_ledger(ledger, step, 0.0, seconds, code)
+        with ledger.open("a") as f:                  # a torn or foreign line is skipped
+            f.write('{"label": "train nav 10 Hz rgb seed 0", "seconds": "soon"}\n{"lab\n')
+        took = study.step_seconds(ledger)
+        # a step resumed over runs: the sum of its runs, the stopped one's time included
+        assert took == {steps[0].label: 600.4, steps[1].label: 300.0, steps[2].label: 900.0}
         for s in steps[:3]:
             s.done.parent.mkdir(parents=True, exist_ok=True)
             s.done.write_bytes(b"")
@@ -246,7 +245,8 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
         assert not runner.is_alive()
         assert result[0][1] == -signal.SIGTERM
         assert f"=== exit -15 after " in log.read_text()
-        assert step.label in study.step_seconds(log)
+        assert step.label in study.step_seconds(tmp_path / study.LEDGER)
+        assert json.loads((tmp_path / study.LEDGER).read_text())["exit"] == -signal.SIGTERM
         # a stopped driver starts nothing more
         assert study.run_step(step, log, threading.Event())[1] is None
 
@@ -311,3 +311,88 @@ def test_ray_sends_the_recordings_and_evaluations_there_and_changes_nothing_else
                                     *a.argv[a.argv.index("--workers") + 2:]]
         else:
             assert a.argv == b.argv == c.argv and a.done == b.done
+
+
+def test_commit_keeps_a_finished_steps_outputs_and_nothing_else(tmp_path, monkeypatch):
+    import subprocess
+    with tool_module("studies/sensor_study") as study:
+        repo = tmp_path / "repo"
+        repo.mkdir()
+
+        def git(*args):
+            return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True,
+                                  text=True).stdout
+        git("init", "-q")
+        git("config", "user.email", "t@example.org")
+        git("config", "user.name", "t")
+        (repo / "README.md").write_text("x\n")
+        git("add", "README.md")
+        git("commit", "-qm", "start")
+        monkeypatch.setattr(study, "ROOT", repo)
+        out = repo / "studies" / "sensors"
+        out.mkdir(parents=True)
+        (out / ".gitignore").write_text((study.STUDY_DIR / ".gitignore").read_text())
+        train = next(s for s in study.plan_steps(out, 2, {"nav10"}) if s.kind == "train")
+        seed_dir = train.done.parent
+        seed_dir.mkdir(parents=True)
+        for name in (train.done.name, "nav-rgb+event.json", "nav-rgb+event-losses.csv",
+                     "nav-rgb.resume.pt", "nav-losses.png"):
+            (seed_dir / name).write_bytes(b"w")
+        study.append_ledger(out / study.LEDGER, train, 0.0, 60.0, 0)
+        (repo / "README.md").write_text("an edit of someone else's, staged\n")
+        git("add", "README.md")
+        assert study.commit_outputs(train, out) is None
+        kept = git("show", "--name-only", "--format=%s", "HEAD").split("\n")
+        assert kept[0].startswith(f"study: {train.label} done")
+        assert sorted(filter(None, kept[1:])) == sorted(
+            f"studies/sensors/{p}" for p in ("steps.jsonl",
+                                             "checkpoints/nav10/seed0/nav-rgb+event.pt",
+                                             "checkpoints/nav10/seed0/nav-rgb+event.json",
+                                             "checkpoints/nav10/seed0/nav-rgb+event-losses.csv"))
+        # the other change stays staged, uncommitted
+        assert git("diff", "--cached", "--name-only").split() == ["README.md"]
+        # nothing new: no commit, no complaint
+        head = git("rev-parse", "HEAD")
+        assert study.commit_outputs(train, out) is None and git("rev-parse", "HEAD") == head
+        # git refusing is said, not swallowed
+        (repo / ".git" / "index.lock").write_text("")
+        said = study.commit_outputs(train, out, attempts=1)
+        assert said and "index.lock" in said
+
+
+def test_run_commit_keeps_each_step_that_finishes_and_says_when_it_cannot(tmp_path, monkeypatch,
+                                                                            capsys):
+    with tool_module("studies/sensor_study") as study:
+        def fake_step(step, log, stop):
+            if stop.is_set():
+                return step, None, 0.0
+            if step.label.endswith("seed 1"):
+                return step, 1, 0.0                  # failed: nothing of it is committed
+            step.done.parent.mkdir(parents=True, exist_ok=True)
+            step.done.write_bytes(b"")
+            return step, 0, 0.0
+
+        committed = []
+        monkeypatch.setattr(study, "run_step", fake_step)
+        monkeypatch.setattr(study, "commit_outputs", lambda step, out: committed.append(
+            (step.label, out)) or ("fatal: no space left" if "seed 2" in step.label else None))
+        argv = ["run", "--steps", "train", "--only", "nav30", "--out", str(tmp_path),
+                "--parallel", "1", "--commit"]
+        assert study.main(argv) == 1
+        labels = [label for label, out in committed]
+        # (a step the pool started before the failure was seen may finish, and is kept)
+        assert labels[0] == "train nav 30 Hz rgb+event seed 0" and committed[0][1] == tmp_path
+        assert not any(label.endswith("seed 1") for label in labels)
+        for s in study.plan_steps(tmp_path, 2, {"nav30"}):
+            if s.kind == "train" and s.label.endswith("seed 1"):
+                s.done.parent.mkdir(parents=True, exist_ok=True)
+                s.done.write_bytes(b"")
+        committed.clear()
+        assert study.main(argv) == 0
+        assert "train nav 30 Hz rgb+event seed 2: its outputs are not committed " \
+               "(fatal: no space left)" in capsys.readouterr().err
+        # without --commit, nothing is
+        committed.clear()
+        for s in study.plan_steps(tmp_path, 2, {"nav30"}):
+            s.done.unlink(missing_ok=True)
+        assert study.main(argv[:-1]) == 1 and committed == []

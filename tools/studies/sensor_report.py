@@ -2,7 +2,7 @@
 """The sensor study's report (issue 38): the tables docs/results.md opens with, built from
 what tools/studies/sensor_study.py wrote, in the shape docs/study_sensors_plan.md fixes.
 
-    tools/studies/sensor_report.py [--out out/study_sensors] [--markdown FILE] [--json FILE]
+    tools/studies/sensor_report.py [--out studies/sensors] [--markdown FILE] [--json FILE]
                                    [--plot FILE] [--update docs/results.md]
 
 Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff at each
@@ -281,8 +281,8 @@ def replace_block(doc: str, tables: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors",
-                    help="the study driver's --out (default out/study_sensors)")
+    ap.add_argument("--out", type=Path, default=ROOT / "studies" / "sensors",
+                    help="the study driver's --out (default studies/sensors)")
     ap.add_argument("--markdown", type=Path, help="write the tables here (default: print)")
     ap.add_argument("--json", type=Path, help="also write the data behind them here")
     ap.add_argument("--plot", type=Path, help="also draw them as one figure here (PNG)")

@@ -33,8 +33,15 @@ goes on from its last finished epoch, and a step that fails or is stopped stops 
 steps after it. Trainings run two at a time (--parallel,
 one thread each, as the recipe says);
 recordings and evaluations use --workers (default 2), on Ray with --ray (a cluster's
-ADDRESS, or a local Ray): the same episodes and results either way. Output under --out
-(default out/study_sensors) and the datasets under datasets/.
+ADDRESS, or a local Ray): the same episodes and results either way.
+
+Output under --out (default studies/sensors, which the repository tracks) and the datasets
+under datasets/ (which it does not: they are gigabytes, and the driver records them again
+from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl (its
+label, start, seconds and exit code; `status` times the steps from it); with --commit,
+each step that finishes is committed at once, its outputs and that line, so that a study
+spread over sessions survives a new checkout: what it needs again is then only the
+datasets of the trainings still to run. The verbose log, OUT/log.txt, is not tracked.
 """
 from __future__ import annotations
 
@@ -57,6 +64,9 @@ sys.path.insert(0, str(ROOT))
 from sebvs.data.index import DatasetIndex  # noqa: E402
 
 PLAN_FILE = "docs/study_sensors_plan.md"
+STUDY_DIR = ROOT / "studies" / "sensors"        # tracked: see studies/sensors/README.md
+SMOKE_DIR = ROOT / "out" / "study_sensors" / "smoke"
+LEDGER = "steps.jsonl"
 
 # ------------------------------------------------------------------ the plan, as written
 PHYS = ['camera.sensor="physical"', 'emulator.preset="physical"']
@@ -248,24 +258,77 @@ def command_of(step: Step) -> list[str]:
     return argv
 
 
-def step_seconds(log: Path) -> dict[str, float]:
-    """Wall seconds per step label from the log: the finished runs of each step (a step
-    resumed over sessions has several). An exit line names its step; one written before
-    it did belongs to the step started last."""
+def step_seconds(ledger: Path) -> dict[str, float]:
+    """Wall seconds per step label from the ledger (OUT/steps.jsonl): the sum over every
+    run of each step (a step resumed over sessions has several, a stopped run counts the
+    time it ran). A line that is not a record of a run is skipped."""
     took: dict[str, float] = {}
-    label = None
-    if not log.exists():
+    if not ledger.exists():
         return took
-    for line in log.read_text().splitlines():
-        if line.startswith("=== exit "):
-            seconds, _, named = line.split(" after ")[1].partition(": ")
-            if named or label is not None:
-                key = named or label
-                took[key] = took.get(key, 0.0) + float(seconds.split()[0])
-            label = None
-        elif line.startswith("=== "):
-            label = line[4:].split(" ", 2)[2]         # after the date and the time
+    for line in ledger.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+            label, seconds = rec["label"], float(rec["seconds"])
+        except (ValueError, TypeError, KeyError):
+            continue
+        if isinstance(label, str):
+            took[label] = took.get(label, 0.0) + seconds
     return took
+
+
+def append_ledger(ledger: Path, step: Step, started: float, seconds: float,
+                  code: int | None) -> None:
+    """One line per run of a step, written whole in one append (trainings run side by
+    side)."""
+    rec = {"label": step.label, "started": time.strftime("%Y-%m-%d %H:%M:%S",
+                                                         time.localtime(started)),
+           "seconds": round(seconds, 1), "exit": code}
+    with ledger.open("a") as f:
+        f.write(json.dumps(rec) + "\n")
+
+
+def outputs_of(step: Step) -> list[Path]:
+    """What a finished step leaves in OUT that the repository keeps: a training's directory
+    (checkpoint, its JSON record and losses; the resume state is ignored), an evaluation's
+    directory (results.json, report and plots; its per-run files are ignored), a reading's
+    JSON and figure. A recording's dataset is not kept."""
+    if step.kind in ("train", "eval"):
+        return [step.done.parent]
+    if step.kind == "read":
+        return [p for p in (step.done, step.done.with_suffix(".png")) if p.exists()]
+    return []
+
+
+def _git(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+
+
+def commit_outputs(step: Step, out: Path, attempts: int = 10) -> str | None:
+    """Commit the step's outputs and the ledger (only those paths, whatever else is staged);
+    None on success, else what git said. Retried while another git command holds the
+    index lock."""
+    paths = [str(p.relative_to(ROOT)) for p in [*outputs_of(step), out / LEDGER]
+             if p.exists()]
+    if not paths:
+        return None
+    said = ""
+    for attempt in range(attempts):
+        run = _git("add", "--", *paths)
+        if run.returncode == 0:
+            run = _git("diff", "--cached", "--quiet", "--", *paths)   # 1: something to commit
+            if run.returncode == 0:
+                return None                                          # nothing new to keep
+            if run.returncode == 1:
+                run = _git("commit", "--quiet", "-m",
+                           f"study: {step.label} done; its outputs kept so that a new "
+                           f"checkout resumes after it", "--only", "--", *paths)
+                if run.returncode == 0:
+                    return None
+        said = (run.stderr or run.stdout).strip()
+        if "index.lock" not in said:
+            break
+        time.sleep(3 * (attempt + 1))
+    return said or "git failed"
 
 
 def training_record(step: Step) -> dict | None:
@@ -427,11 +490,12 @@ def stop_running(signum: int, frame) -> None:
 
 
 def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | None, float]:
-    """Run one step, its output to the log; (step, exit code, seconds), or a None code
-    when an earlier step failed, or the driver was stopped, before this one started."""
+    """Run one step, its output to the log and a line to the ledger beside it; (step, exit
+    code, seconds), or a None code when an earlier step failed, or the driver was stopped,
+    before this one started."""
     if stop.is_set() or STOPPING.is_set():
         return step, None, 0.0
-    t0 = time.monotonic()
+    t0, started = time.monotonic(), time.time()
     argv = command_of(step)
     with log.open("a") as f:
         f.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n")
@@ -445,8 +509,10 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
             with _RUNNING_LOCK:
                 _RUNNING.discard(proc)
         # the label again: trainings run side by side and write into one log
-        f.write(f"=== exit {code} after {time.monotonic() - t0:.0f} s: {step.label}\n")
-    return step, code, time.monotonic() - t0
+        took = time.monotonic() - t0
+        f.write(f"=== exit {code} after {took:.0f} s: {step.label}\n")
+    append_ledger(log.parent / LEDGER, step, started, took, code)
+    return step, code, took
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -462,7 +528,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default=None, metavar="CELLS",
                     help="task and rate, comma-separated: nav10, nav30, arm10, arm30; `run` "
                          "takes them in the order given (default: all, in that order)")
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "study_sensors")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="the study's outputs (default studies/sensors, tracked; smoke: "
+                         "out/study_sensors/smoke)")
+    ap.add_argument("--commit", action="store_true",
+                    help="commit each finished step's outputs and its ledger line at once "
+                         "(git, only those paths), so that a new checkout resumes after it")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
     ap.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
@@ -479,9 +550,10 @@ def main(argv: list[str] | None = None) -> int:
     if set(kinds) - {"record", "train", "eval", "read"}:
         ap.error("--steps: give record, train, eval, read")
     if args.action == "smoke":
-        args.out = args.out / "smoke"
+        args.out = SMOKE_DIR if args.out is None else args.out / "smoke"
         steps = [s for s in smoke_steps(args.out, args.workers, cells) if s.kind in kinds]
     else:
+        args.out = STUDY_DIR if args.out is None else args.out
         steps = [s for s in plan_steps(args.out, args.workers, cells, args.ray)
                  if s.kind in kinds]
     if args.action == "plan":
@@ -489,7 +561,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
         return 0
     if args.action == "status":
-        print(status_text(steps, kinds, step_seconds(args.out / "log.txt"), args.parallel))
+        print(status_text(steps, kinds, step_seconds(args.out / LEDGER), args.parallel))
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
@@ -502,7 +574,8 @@ def main(argv: list[str] | None = None) -> int:
         for kind in kinds:
             todo = [s for s in steps if step_cell(s) == cell and s.kind == kind
                     and not is_done(s)]
-            if not run_together(todo, log, args.parallel if kind == "train" else 1):
+            if not run_together(todo, log, args.parallel if kind == "train" else 1,
+                                commit=args.out if args.commit else None):
                 print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
                 return 1
     return 0
@@ -514,9 +587,11 @@ def step_cell(step: Step) -> str:
     return words[1] + words[2]
 
 
-def run_together(todo: list[Step], log: Path, parallel: int) -> bool:
+def run_together(todo: list[Step], log: Path, parallel: int,
+                 commit: Path | None = None) -> bool:
     """Run the steps, ``parallel`` at once; False when one failed (those not yet started
-    then never start; the running ones end)."""
+    then never start; the running ones end). commit: the study's OUT, to commit each step
+    that finishes (commit_outputs); a commit that fails is said, and the study goes on."""
     stop, failed = threading.Event(), False
     with ThreadPoolExecutor(parallel) as pool:
         futures = [pool.submit(run_step, s, log, stop) for s in todo]
@@ -527,6 +602,9 @@ def run_together(todo: list[Step], log: Path, parallel: int) -> bool:
             state = ("done" if code == 0 and is_done(step) else
                      f"stopped (exit {code})" if STOPPING.is_set() else f"FAILED (exit {code})")
             print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
+            if commit is not None and state == "done" and (said := commit_outputs(step, commit)):
+                print(f"sensor study: {step.label}: its outputs are not committed ({said}); "
+                      f"commit them by hand", file=sys.stderr)
             if state != "done":
                 stop.set()                   # nothing new starts; running ones end
                 failed = True
