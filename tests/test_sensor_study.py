@@ -230,14 +230,15 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
         step = study.Step("train", "train nav 10 Hz rgb seed 0", ("x",), tmp_path / "x.pt")
         monkeypatch.setattr(study, "command_of", lambda s: [
-            sys.executable, "-c", "import time; print('started', flush=True); time.sleep(60)"])
+            sys.executable, "-c", "import time; print('start' + 'ed', flush=True); time.sleep(60)"])
         log = tmp_path / "log.txt"
         result = []
         runner = threading.Thread(target=lambda: result.append(
             study.run_step(step, log, threading.Event())))
         runner.start()
         for _ in range(200):                          # until the step's process is up
-            if "started" in log.read_text() if log.exists() else False:
+            output = study.step_log(log, step)
+            if "started" in output.read_text() if output.exists() else False:
                 break
             threading.Event().wait(0.05)
         study.stop_running(signal.SIGTERM, None)
@@ -245,6 +246,9 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
         assert not runner.is_alive()
         assert result[0][1] == -signal.SIGTERM
         assert f"=== exit -15 after " in log.read_text()
+        assert "started" not in log.read_text()        # the step's output is in its own file
+        assert output.name == "train_nav_10_Hz_rgb_seed_0.txt" and "=== exit -15" in \
+            output.read_text()
         assert step.label in study.step_seconds(tmp_path / study.LEDGER)
         assert json.loads((tmp_path / study.LEDGER).read_text())["exit"] == -signal.SIGTERM
         # a stopped driver starts nothing more

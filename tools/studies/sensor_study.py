@@ -41,7 +41,8 @@ from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl
 label, start, seconds and exit code; `status` times the steps from it); with --commit,
 each step that finishes is committed at once, its outputs and that line, so that a study
 spread over sessions survives a new checkout: what it needs again is then only the
-datasets of the trainings still to run. The verbose log, OUT/log.txt, is not tracked.
+datasets of the trainings still to run. The driver's log, OUT/log.txt (each step's start
+and exit), and each step's own output, OUT/logs/<step>.txt, are not tracked.
 """
 from __future__ import annotations
 
@@ -489,27 +490,40 @@ def stop_running(signum: int, frame) -> None:
                 proc.send_signal(signum)
 
 
+def step_log(log: Path, step: Step) -> Path:
+    """The step's own output file, beside the driver's log: logs/<label, spaces as _>.txt
+    (appended to by every run of the step)."""
+    return log.parent / "logs" / (step.label.replace(" ", "_") + ".txt")
+
+
 def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | None, float]:
-    """Run one step, its output to the log and a line to the ledger beside it; (step, exit
-    code, seconds), or a None code when an earlier step failed, or the driver was stopped,
-    before this one started."""
+    """Run one step, its output to its own file (step_log; trainings run side by side, and
+    their lines would interleave in one), its start and exit to the driver's log and a
+    line to the ledger beside it; (step, exit code, seconds), or a None code when an
+    earlier step failed, or the driver was stopped, before this one started."""
     if stop.is_set() or STOPPING.is_set():
         return step, None, 0.0
     t0, started = time.monotonic(), time.time()
     argv = command_of(step)
+    output = step_log(log, step)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    header = f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n"
     with log.open("a") as f:
-        f.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n")
-        f.flush()
+        f.write(header + f"(output: {output.relative_to(log.parent)})\n")
+    with output.open("a") as out:
+        out.write(header)
+        out.flush()
         with _RUNNING_LOCK:
-            proc = subprocess.Popen(argv, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT)
+            proc = subprocess.Popen(argv, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
             _RUNNING.add(proc)
         try:
             code = proc.wait()
         finally:
             with _RUNNING_LOCK:
                 _RUNNING.discard(proc)
-        # the label again: trainings run side by side and write into one log
         took = time.monotonic() - t0
+        out.write(f"=== exit {code} after {took:.0f} s\n")
+    with log.open("a") as f:
         f.write(f"=== exit {code} after {took:.0f} s: {step.label}\n")
     append_ledger(log.parent / LEDGER, step, started, took, code)
     return step, code, took
@@ -576,7 +590,8 @@ def main(argv: list[str] | None = None) -> int:
                     and not is_done(s)]
             if not run_together(todo, log, args.parallel if kind == "train" else 1,
                                 commit=args.out if args.commit else None):
-                print(f"sensor study: stopped; the log says why: {log}", file=sys.stderr)
+                print(f"sensor study: stopped; the step's output under {log.parent / 'logs'} "
+                      f"says why", file=sys.stderr)
                 return 1
     return 0
 
