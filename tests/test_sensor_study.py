@@ -400,3 +400,35 @@ def test_run_commit_keeps_each_step_that_finishes_and_says_when_it_cannot(tmp_pa
         for s in study.plan_steps(tmp_path, 2, {"nav30"}):
             s.done.unlink(missing_ok=True)
         assert study.main(argv[:-1]) == 1 and committed == []
+
+
+def test_a_cell_whose_trainings_are_done_is_not_recorded_again(tmp_path, monkeypatch, capsys):
+    with tool_module("studies/sensor_study") as study:
+        monkeypatch.setattr(study, "dataset_dir", lambda task, rate: tmp_path / "none")
+        ran = []
+
+        def fake_step(step, log, stop):
+            ran.append(step.label)
+            return step, 1, 0.0                      # stop at the first step run
+
+        monkeypatch.setattr(study, "run_step", fake_step)
+        out = tmp_path / "out"
+        argv = ["run", "--steps", "record,train", "--only", "nav10,arm10", "--out", str(out)]
+        trainings = [s for s in study.plan_steps(out, 2, {"nav10"}) if s.kind == "train"]
+        for s in trainings[:-1]:
+            s.done.parent.mkdir(parents=True, exist_ok=True)
+            s.done.write_bytes(b"")
+        # one nav training left: its dataset is recorded first
+        assert study.main(argv) == 1 and ran == ["record nav 10 Hz"]
+        trainings[-1].done.write_bytes(b"")
+        ran.clear()
+        # all done: nav's recording is skipped, and said so; the arm's is needed
+        assert study.main(argv) == 1 and ran == ["record arm 10 Hz"]
+        assert "record nav 10 Hz: not needed, every training of its cell is done" in \
+            capsys.readouterr().err
+        assert study.main(["status", "--only", "nav10", "--out", str(out)]) == 0
+        text = capsys.readouterr().out
+        assert "record nav 10 Hz: not needed" in text and "train: 10/10 done" in text
+        # the plan still lists the command
+        assert study.main(["plan", "--only", "nav10", "--out", str(out)]) == 0
+        assert "# record nav 10 Hz" in capsys.readouterr().out

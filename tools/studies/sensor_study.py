@@ -11,7 +11,8 @@ The commands are built from the plan's tables below (PLAN_*), which must say wha
 plan says; nothing here chooses anything. `run` skips what is already done, so a session
 that ends mid-study loses at most the step in flight:
 
-record  a dataset whose index holds the planned episode count is done; one that holds
+record  a dataset whose index holds the planned episode count is done, and one whose
+        cell's trainings are all done is not needed (a dataset feeds only them); one that holds
         episodes 0..k-1 is extended by the episodes missing (`sebvs record` resumes its
         numbering at k); one with holes (an interrupted fan-out leaves them) is filled
         with `sebvs record --fill`, the same episodes an unbroken run records
@@ -242,6 +243,14 @@ def is_done(step: Step) -> bool:
     if step.kind == "record":
         return recorded(step.done) >= step.want
     return step.done.exists()
+
+
+def dataset_needed(record: Step, planned: list[Step]) -> bool:
+    """Whether a recording step must run: while a training of its cell is left. The
+    datasets feed only the trainings, and a new checkout does not hold them, so a cell
+    whose trainings are all done (committed) is not recorded again."""
+    return any(s.kind == "train" and step_cell(s) == step_cell(record) and not is_done(s)
+               for s in planned)
 
 
 def command_of(step: Step) -> list[str]:
@@ -565,17 +574,24 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--steps: give record, train, eval, read")
     if args.action == "smoke":
         args.out = SMOKE_DIR if args.out is None else args.out / "smoke"
-        steps = [s for s in smoke_steps(args.out, args.workers, cells) if s.kind in kinds]
+        planned = smoke_steps(args.out, args.workers, cells)     # records none
+        steps = [s for s in planned if s.kind in kinds]
     else:
         args.out = STUDY_DIR if args.out is None else args.out
-        steps = [s for s in plan_steps(args.out, args.workers, cells, args.ray)
-                 if s.kind in kinds]
+        planned = plan_steps(args.out, args.workers, cells, args.ray)
+        steps = [s for s in planned if s.kind in kinds]
     if args.action == "plan":
         for s in steps:
             print(f"# {s.label}\n{shlex.join(command_of(s) if s.kind == 'record' else s.argv)}")
         return 0
+    unneeded = [s for s in steps if s.kind == "record" and not is_done(s)
+                and not dataset_needed(s, planned)]
+    steps = [s for s in steps if s not in unneeded]
+    notes = [f"{s.label}: not needed, every training of its cell is done (a dataset feeds "
+             f"only the trainings)" for s in unneeded]
     if args.action == "status":
-        print(status_text(steps, kinds, step_seconds(args.out / LEDGER), args.parallel))
+        print("\n".join([*notes, status_text(steps, kinds, step_seconds(args.out / LEDGER),
+                                              args.parallel)]))
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "log.txt"
@@ -583,6 +599,8 @@ def main(argv: list[str] | None = None) -> int:
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:     # a background job's stays
         signal.signal(signal.SIGINT, stop_running)
     print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
+    for note in notes:
+        print(note, file=sys.stderr)
     order = args.only.split(",") if args.only else list(dict.fromkeys(map(step_cell, steps)))
     for cell in dict.fromkeys(order):
         for kind in kinds:
