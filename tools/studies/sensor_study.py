@@ -12,10 +12,10 @@ plan says; nothing here chooses anything. `run` skips what is already done, so a
 that ends mid-study loses at most the step in flight:
 
 record  a dataset whose index holds the planned episode count is done, and one whose
-        cell's trainings are all done is not needed (a dataset feeds only them); one that holds
-        episodes 0..k-1 is extended by the episodes missing (`sebvs record` resumes its
-        numbering at k); one with holes (an interrupted fan-out leaves them) is filled
-        with `sebvs record --fill`, the same episodes an unbroken run records
+        cell's trainings are all done is not needed (a dataset feeds only them); one
+        that holds episodes 0..k-1 is extended by the episodes missing (`sebvs record`
+        resumes its numbering at k); one with holes (an interrupted fan-out leaves them)
+        is filled with `sebvs record --fill`, the same episodes an unbroken run records
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one)
