@@ -250,7 +250,8 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
         assert output.name == "train_nav_10_Hz_rgb_seed_0.txt" and "=== exit -15" in \
             output.read_text()
         assert step.label in study.step_seconds(tmp_path / study.LEDGER)
-        assert json.loads((tmp_path / study.LEDGER).read_text())["exit"] == -signal.SIGTERM
+        line = json.loads((tmp_path / study.LEDGER).read_text())
+        assert line["exit"] == -signal.SIGTERM and line["machine"] == study.machine()
         # a stopped driver starts nothing more
         assert study.run_step(step, log, threading.Event())[1] is None
 
@@ -432,3 +433,15 @@ def test_a_cell_whose_trainings_are_done_is_not_recorded_again(tmp_path, monkeyp
         # the plan still lists the command
         assert study.main(["plan", "--only", "nav10", "--out", str(out)]) == 0
         assert "# record nav 10 Hz" in capsys.readouterr().out
+
+
+def test_the_ledger_names_the_cpu_each_run_had():
+    with tool_module("studies/sensor_study") as study:
+        cpuinfo = ("processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\n"
+                   "model name\t: AMD EPYC\nflags\t\t: fpu sse2 avx avx2 avx512f avx512bw\n\n"
+                   "processor\t: 1\nmodel name\t: AMD EPYC\n")
+        assert study.machine(cpuinfo).startswith("AMD EPYC (family 25, model 17), avx512f, ")
+        older = cpuinfo.replace(" avx512f avx512bw", "")
+        assert study.machine(older).startswith("AMD EPYC (family 25, model 17), avx2, ")
+        assert study.machine(cpuinfo) != study.machine(older)
+        assert study.machine("").endswith(" CPUs")          # no /proc/cpuinfo: still a line

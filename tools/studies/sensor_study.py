@@ -39,7 +39,7 @@ ADDRESS, or a local Ray): the same episodes and results either way.
 Output under --out (default studies/sensors, which the repository tracks) and the datasets
 under datasets/ (which it does not: they are gigabytes, and the driver records them again
 from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl (its
-label, start, seconds and exit code; `status` times the steps from it); with --commit,
+label, start, seconds, exit code and CPU; `status` times the steps from it); with --commit,
 each step that finishes is committed at once, its outputs and that line, so that a study
 spread over sessions survives a new checkout: what it needs again is then only the
 datasets of the trainings still to run. The driver's log, OUT/log.txt (each step's start
@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import shlex
 import signal
 import subprocess
@@ -286,13 +288,35 @@ def step_seconds(ledger: Path) -> dict[str, float]:
     return took
 
 
+def machine(cpuinfo: str | None = None) -> str:
+    """The CPU a step ran on, as the float results depend on it: torch and Mesa's
+    llvmpipe choose their kernels by the instruction set, so one machine kind with another
+    CPU trains and renders other bits. E.g. "AMD EPYC (family 25, model 17), avx512f, 2
+    CPUs"; cpuinfo: /proc/cpuinfo's text (read when None; "" where there is none)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    name = fields.get("model name") or platform.processor() or platform.machine() or "unknown"
+    if "cpu family" in fields and "model" in fields:
+        name += f" (family {fields['cpu family']}, model {fields['model']})"
+    widest = next((f for f in ("avx512f", "avx2", "avx", "neon", "asimd")
+                   if f in fields.get("flags", fields.get("Features", "")).split()), None)
+    return ", ".join([name, *([widest] if widest else []), f"{os.cpu_count()} CPUs"])
+
+
 def append_ledger(ledger: Path, step: Step, started: float, seconds: float,
                   code: int | None) -> None:
     """One line per run of a step, written whole in one append (trainings run side by
-    side)."""
+    side), with the machine it ran on (machine())."""
     rec = {"label": step.label, "started": time.strftime("%Y-%m-%d %H:%M:%S",
                                                          time.localtime(started)),
-           "seconds": round(seconds, 1), "exit": code}
+           "seconds": round(seconds, 1), "exit": code, "machine": machine()}
     with ledger.open("a") as f:
         f.write(json.dumps(rec) + "\n")
 
