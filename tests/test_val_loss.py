@@ -1,0 +1,61 @@
+"""tools/studies/val_loss.py: a checkpoint tells whether a dataset holds the validation
+frames it was trained on."""
+import json
+
+import h5py
+import pytest
+
+from sebvs.policy.inputs import Normalisation
+from sebvs.policy.train import train
+from tests.policy_data import make_dataset
+from tests.tools_loader import tool_module
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("val_loss")
+    data = make_dataset(root / "data", episodes=5, frames=16, target="gain")
+    train(data, root / "ckpt", "nav", ["rgb+event"], epochs=2, batch=8,
+          norm=Normalisation(size=32), progress=False, log=lambda s: None)
+    return data, root / "ckpt" / "nav-rgb+event.pt"
+
+
+def test_the_same_frames_give_the_recorded_loss(trained, tmp_path):
+    data, pt = trained
+    with tool_module("studies/val_loss") as tool:
+        out = tmp_path / "r.json"
+        assert tool.main([str(pt), str(data), "--json", str(out)]) == 0
+        result = json.loads(out.read_text())
+    assert result["same"] and result["val_loss_now"] == result["val_loss_recorded"]
+    assert result["val_frames"] == 16                     # one of five episodes held out
+
+
+def test_one_changed_validation_frame_is_seen(trained, tmp_path):
+    import shutil
+    data, pt = trained
+    changed = tmp_path / "changed"
+    shutil.copytree(data, changed)
+    val = json.loads(pt.with_suffix(".json").read_text())["dataset"]["val_episodes"]
+    with h5py.File(changed / val[0], "r+") as f:
+        f["events/frame"][3] = f["events/frame"][3] + 1   # one frame's event counts
+    with tool_module("studies/val_loss") as tool:
+        out = tmp_path / "r.json"
+        assert tool.main([str(pt), str(changed), "--json", str(out)]) == 1
+        assert json.loads(out.read_text())["relative_difference"] > 1e-6
+
+
+def test_a_dataset_without_the_validation_episodes_is_refused(trained, tmp_path, capsys):
+    import shutil
+    data, pt = trained
+    short = tmp_path / "short"
+    shutil.copytree(data, short)
+    val = json.loads(pt.with_suffix(".json").read_text())["dataset"]["val_episodes"]
+    index = json.loads((short / "index.json").read_text())
+    index["episodes"] = [e for e in index["episodes"] if e["file"] != val[0]]
+    (short / "index.json").write_text(json.dumps(index))
+    with tool_module("studies/val_loss") as tool:
+        assert tool.main([str(pt), str(short)]) == 2
+        assert f"lacks 1 of the checkpoint's validation episodes ({val[0]})" in \
+            capsys.readouterr().err
+        assert tool.main([str(tmp_path / "none.pt"), str(data)]) == 2
+        assert "none" in capsys.readouterr().err
