@@ -250,8 +250,9 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
         assert output.name == "train_nav_10_Hz_rgb_seed_0.txt" and "=== exit -15" in \
             output.read_text()
         assert step.label in study.step_seconds(tmp_path / study.LEDGER)
-        line = json.loads((tmp_path / study.LEDGER).read_text())
-        assert line["exit"] == -signal.SIGTERM and line["machine"] == study.machine()
+        start, end = map(json.loads, (tmp_path / study.LEDGER).read_text().splitlines())
+        assert end["exit"] == -signal.SIGTERM and end["machine"] == study.machine()
+        assert "seconds" not in start and start["machine"] == study.machine()
         # a stopped driver starts nothing more
         assert study.run_step(step, log, threading.Event())[1] is None
 
@@ -445,3 +446,26 @@ def test_the_ledger_names_the_cpu_each_run_had():
         assert study.machine(older).startswith("AMD EPYC (family 25, model 17), avx2, ")
         assert study.machine(cpuinfo) != study.machine(older)
         assert study.machine("").endswith(" CPUs")          # no /proc/cpuinfo: still a line
+
+
+def test_an_evaluation_stopped_on_another_cpu_starts_again_here(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        ledger = tmp_path / study.LEDGER
+        evals = [s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "eval"]
+        step, other_step = evals[0], evals[1]
+        finished = step.done.parent / "episodes" / "rgb__nominal_physical.jsonl"
+        finished.parent.mkdir(parents=True)
+        finished.write_text("{}\n")
+        # stopped here before: sebvs eval resumes its finished runs
+        study.append_ledger(ledger, step, 0.0)
+        assert study.start_on_this_cpu(step, ledger) is None and finished.exists()
+        # stopped on another CPU (a start line is enough: a killed run writes no end)
+        monkeypatch.setattr(study, "machine", lambda: "AMD EPYC (family 25, model 1), avx2, 2 CPUs")
+        study.append_ledger(ledger, step, 0.0)
+        study.append_ledger(ledger, other_step, 0.0)
+        monkeypatch.undo()
+        said = study.start_on_this_cpu(step, ledger)
+        assert said and "model 1), avx2" in said and not finished.parent.exists()
+        # a training resumes on any CPU: another draw of the recipe
+        train = next(s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "train")
+        assert study.start_on_this_cpu(train, ledger) is None

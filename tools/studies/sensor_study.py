@@ -18,7 +18,8 @@ record  a dataset whose index holds the planned episode count is done, and one w
         is filled with `sebvs record --fill`, the same episodes an unbroken run records
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
-        the finished runs of an interrupted one)
+        the finished runs of an interrupted one, unless the ledger says it was
+        interrupted on another CPU: then it starts again, so that it runs whole on one)
 read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
         rule, into OUT/read/<task><rate>.json and .png (nav joins each seed's two
         evaluation groups); tools/studies/sensor_report.py then builds the report's tables
@@ -52,6 +53,7 @@ import json
 import os
 import platform
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -273,7 +275,7 @@ def command_of(step: Step) -> list[str]:
 def step_seconds(ledger: Path) -> dict[str, float]:
     """Wall seconds per step label from the ledger (OUT/steps.jsonl): the sum over every
     run of each step (a step resumed over sessions has several, a stopped run counts the
-    time it ran). A line that is not a record of a run is skipped."""
+    time it ran). A start line, or one that is not a record of a run, is skipped."""
     took: dict[str, float] = {}
     if not ledger.exists():
         return took
@@ -310,13 +312,17 @@ def machine(cpuinfo: str | None = None) -> str:
     return ", ".join([name, *([widest] if widest else []), f"{os.cpu_count()} CPUs"])
 
 
-def append_ledger(ledger: Path, step: Step, started: float, seconds: float,
-                  code: int | None) -> None:
-    """One line per run of a step, written whole in one append (trainings run side by
-    side), with the machine it ran on (machine())."""
+def append_ledger(ledger: Path, step: Step, started: float, seconds: float | None = None,
+                  code: int | None = None) -> None:
+    """A line for a run of a step, written whole in one append (trainings run side by side),
+    with the machine it ran on (machine()): at its start without seconds and exit code (so
+    that a run killed before it could write its end still names its CPU), at its end with
+    them."""
     rec = {"label": step.label, "started": time.strftime("%Y-%m-%d %H:%M:%S",
                                                          time.localtime(started)),
-           "seconds": round(seconds, 1), "exit": code, "machine": machine()}
+           "machine": machine()}
+    if seconds is not None:
+        rec.update(seconds=round(seconds, 1), exit=code)
     with ledger.open("a") as f:
         f.write(json.dumps(rec) + "\n")
 
@@ -523,6 +529,37 @@ def stop_running(signum: int, frame) -> None:
                 proc.send_signal(signum)
 
 
+def ledger_machines(ledger: Path, label: str) -> set[str]:
+    """The CPUs the ledger says earlier runs of this step ran on."""
+    found = set()
+    if ledger.exists():
+        for line in ledger.read_text().splitlines():
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(rec, dict) and rec.get("label") == label and rec.get("machine"):
+                found.add(rec["machine"])
+    return found
+
+
+def start_on_this_cpu(step: Step, ledger: Path) -> str | None:
+    """An evaluation runs whole on one CPU: its RGB+Event and RGB+Diff rows are read as a
+    pair, and another CPU plays other events (docs/scale.md, "Determinism"). So when an
+    earlier, stopped run of it was made on another CPU, the runs it finished (its
+    episodes/ directory, which `sebvs eval` would resume from) are removed; returns what
+    was done, for the log, or None."""
+    episodes = step.done.parent / "episodes"
+    if step.kind != "eval" or not episodes.exists():
+        return None
+    other = ledger_machines(ledger, step.label) - {machine()}
+    if not other:
+        return None
+    shutil.rmtree(episodes)
+    return (f"its finished runs were made on another CPU ({'; '.join(sorted(other))}): "
+            f"removed, the evaluation starts again on this one ({machine()})")
+
+
 def step_log(log: Path, step: Step) -> Path:
     """The step's own output file, beside the driver's log: logs/<label, spaces as _>.txt
     (appended to by every run of the step)."""
@@ -541,6 +578,10 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
     output = step_log(log, step)
     output.parent.mkdir(parents=True, exist_ok=True)
     header = f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n"
+    restarted = start_on_this_cpu(step, log.parent / LEDGER)
+    if restarted:
+        header += f"(restarted: {restarted})\n"
+    append_ledger(log.parent / LEDGER, step, started)
     with log.open("a") as f:
         f.write(header + f"(output: {output.relative_to(log.parent)})\n")
     with output.open("a") as out:
