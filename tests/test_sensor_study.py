@@ -469,3 +469,26 @@ def test_an_evaluation_stopped_on_another_cpu_starts_again_here(tmp_path, monkey
         # a training resumes on any CPU: another draw of the recipe
         train = next(s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "train")
         assert study.start_on_this_cpu(train, ledger) is None
+
+
+def test_the_report_names_the_cpu_of_every_evaluation(tmp_path):
+    with tool_module("studies/sensor_study") as study, \
+            tool_module("studies/sensor_report") as rep:
+        evals = [s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "eval"]
+        for s in evals:
+            s.done.parent.mkdir(parents=True)
+            s.done.write_text(json.dumps({"task": "arm", "seed": 100200, "episodes": []}))
+        a, b = "AMD EPYC (family 25, model 17), avx512f, 2 CPUs", "Xeon (family 6), avx2, 2 CPUs"
+        lines = [{"label": evals[0].label, "machine": a}, {"label": evals[1].label, "machine": a},
+                 {"label": evals[1].label, "machine": b}, {"label": "train x", "machine": b}]
+        (tmp_path / study.LEDGER).write_text("".join(json.dumps(r) + "\n" for r in lines))
+        found = rep.eval_machines(tmp_path, "arm", 30)
+        assert found == {evals[0].label: [a], evals[1].label: [a, b], evals[2].label: []}
+        line = rep.machines_line(found)
+        assert line.startswith(f"Evaluated on: {a}; {b} (3 evaluations)")
+        assert f"more than one CPU within {evals[1].label}" in line
+        assert f"no CPU recorded for {evals[2].label}" in line
+        text, data, _ = rep.report(tmp_path)
+        assert line in text and data["tasks"]["arm"]["machines"][30] == found
+        assert rep.machines_line({evals[0].label: []}) == \
+            "Evaluated on: no CPU recorded (1 evaluation)."

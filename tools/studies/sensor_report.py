@@ -9,7 +9,8 @@ Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff 
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
 interval, how many seeds are ahead / behind, the rule's verdict), and beside it what the
 plan's physics predicted and whether that held. Below it, per rate, the descriptive rows:
-each modality's mean (over its training seeds), the expert and no action, per cell.
+each modality's mean (over its training seeds), the expert and no action, per cell, and
+the CPUs the evaluations ran on (the driver's ledger, OUT/steps.jsonl).
 
 Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
 JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What the physics
@@ -33,8 +34,9 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
-from tools.studies.sensor_study import (EVAL_GROUPS, PLAN_FILE, PLAN_SEEDS,  # noqa: E402
-                                        READ_METRIC, READ_RULE, eval_dir)
+from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
+                                        PLAN_SEEDS, READ_METRIC, READ_RULE, eval_dir,
+                                        ledger_machines)
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
@@ -154,6 +156,34 @@ def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[st
             for row, cells in per_seed.items()}
 
 
+def eval_machines(out: Path, task: str, rate: int) -> dict[str, list[str]]:
+    """{evaluation step label: the CPUs its runs ran on}, from the driver's ledger, for
+    the evaluations of the task and rate that have results (an empty list: run before
+    the ledger named CPUs)."""
+    found = {}
+    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
+        for group, _, _ in EVAL_GROUPS[task]:
+            if (eval_dir(out, task, rate, seed, group) / "results.json").exists():
+                label = f"eval {task} {rate} Hz seed {seed} {group}"
+                found[label] = sorted(ledger_machines(out / LEDGER, label))
+    return found
+
+
+def machines_line(found: dict[str, list[str]]) -> str:
+    """Where the evaluations ran, in one sentence: the report names the machine of every
+    reading, as no reading may pair rows made on different CPUs (docs/scale.md)."""
+    cpus = sorted({m for ms in found.values() for m in ms})
+    mixed = [label for label, ms in found.items() if len(ms) > 1]
+    unknown = [label for label, ms in found.items() if not ms]
+    text = (f"Evaluated on: {'; '.join(cpus) if cpus else 'no CPU recorded'} "
+            f"({len(found)} evaluation{'s' * (len(found) != 1)})")
+    if mixed:
+        text += f"; more than one CPU within {', '.join(mixed)}"
+    if unknown and cpus:
+        text += f"; no CPU recorded for {', '.join(unknown)}"
+    return text + "."
+
+
 def rows_table(task: str, rate: int, means: dict[str, dict[str, float]]) -> list[str]:
     seeds = {m: len(s) for m, s in PLAN_SEEDS[rate].items()}
     head = [f"{r} ({seeds[r]} seed{'s' * (seeds[r] > 1)})" if r in seeds else r for r in ROWS]
@@ -183,12 +213,17 @@ def report(out: Path) -> tuple[str, dict, bool]:
         lines += rows + [""]
         metric = tables_metric(task, tables)
         data["tasks"][task] = {"readings": tables, "rows": {}}
+        data["tasks"][task]["machines"] = {}
         for rate in RATES:
             means = row_means(out, task, rate, metric)
             data["tasks"][task]["rows"][rate] = means
             lines += [f"{task} at {rate} Hz, every row ({metric}, %, mean over the seeds "
                       f"each modality was trained with; test seed episodes):", "",
                       *rows_table(task, rate, means), ""]
+            found = eval_machines(out, task, rate)
+            data["tasks"][task]["machines"][rate] = found
+            if found:
+                lines += [machines_line(found), ""]
     return "\n".join(lines), data, done
 
 
