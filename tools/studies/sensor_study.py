@@ -272,21 +272,32 @@ def command_of(step: Step) -> list[str]:
     return argv
 
 
+def read_ledger(ledger: Path) -> list[dict]:
+    """The ledger's records (OUT/steps.jsonl), each with a string "label"; a line that is
+    not one (torn by a kill, or foreign) is skipped."""
+    records = []
+    if ledger.exists():
+        for line in ledger.read_text().splitlines():
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(rec, dict) and isinstance(rec.get("label"), str):
+                records.append(rec)
+    return records
+
+
 def step_seconds(ledger: Path) -> dict[str, float]:
-    """Wall seconds per step label from the ledger (OUT/steps.jsonl): the sum over every
-    run of each step (a step resumed over sessions has several, a stopped run counts the
-    time it ran). A start line, or one that is not a record of a run, is skipped."""
+    """Wall seconds per step label from the ledger: the sum over every run of each step (a
+    step resumed over sessions has several, a stopped run counts the time it ran). A start
+    line (no seconds yet) adds nothing."""
     took: dict[str, float] = {}
-    if not ledger.exists():
-        return took
-    for line in ledger.read_text().splitlines():
+    for rec in read_ledger(ledger):
         try:
-            rec = json.loads(line)
-            label, seconds = rec["label"], float(rec["seconds"])
-        except (ValueError, TypeError, KeyError):
+            seconds = float(rec["seconds"])
+        except (KeyError, TypeError, ValueError):
             continue
-        if isinstance(label, str):
-            took[label] = took.get(label, 0.0) + seconds
+        took[rec["label"]] = took.get(rec["label"], 0.0) + seconds
     return took
 
 
@@ -531,16 +542,8 @@ def stop_running(signum: int, frame) -> None:
 
 def ledger_machines(ledger: Path, label: str) -> set[str]:
     """The CPUs the ledger says earlier runs of this step ran on."""
-    found = set()
-    if ledger.exists():
-        for line in ledger.read_text().splitlines():
-            try:
-                rec = json.loads(line)
-            except ValueError:
-                continue
-            if isinstance(rec, dict) and rec.get("label") == label and rec.get("machine"):
-                found.add(rec["machine"])
-    return found
+    return {rec["machine"] for rec in read_ledger(ledger)
+            if rec["label"] == label and isinstance(rec.get("machine"), str)}
 
 
 def start_on_this_cpu(step: Step, ledger: Path) -> str | None:
