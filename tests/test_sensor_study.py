@@ -492,3 +492,14 @@ def test_the_report_names_the_cpu_of_every_evaluation(tmp_path):
         assert line in text and data["tasks"]["arm"]["machines"][30] == found
         assert rep.machines_line({evals[0].label: []}) == \
             "Evaluated on: no CPU recorded (1 evaluation)."
+
+
+def test_a_training_is_sized_by_the_plans_frames_before_its_dataset_exists(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        # the frames the study's four recordings held (docs/study_sensors_log.md)
+        assert [study.planned_frames(t, r) for t, r in
+                (("nav", 10), ("nav", 30), ("arm", 10), ("arm", 30))] == \
+            [24_120, 72_120, 31_500, 91_500]
+        monkeypatch.setattr(study, "dataset_dir", lambda task, rate: tmp_path / "none")
+        train = next(s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "train")
+        assert study.step_work(train) == 91_500 * 16

@@ -399,16 +399,25 @@ def training_record(step: Step) -> dict | None:
     return training
 
 
+def planned_frames(task: str, rate: int) -> int:
+    """The labelled frames the plan's recording of a task and rate holds, before it exists
+    (a new checkout has no datasets): episodes x (episode seconds x rate + 1), one per
+    control tick and one at the start (nav 10 Hz: 120 x 201 = 24,120, as recorded)."""
+    _, episodes, extra = PLAN_RECORDINGS[(task, rate)]
+    return episodes * (round(episode_seconds(task, tuple(sets(extra)), "record") * rate) + 1)
+
+
 def step_work(step: Step, epochs: float | None = None) -> float:
     """A step's size in the unit its time scales with: a training's frames (the dataset's,
-    as indexed) times its epochs (those it ran once done, else ``epochs``, else the
+    as indexed, or the plan's before it is recorded) times its epochs (those it ran once done, else ``epochs``, else the
     planned), an evaluation's simulated seconds over all its rows (modalities, and the
     expert and no action where it has them)."""
     argv = step.argv
     if step.kind == "train":
         data = Path(argv[argv.index("--data") + 1])
         frames = (sum(e.get("frames", 0) for e in DatasetIndex(data).episodes())
-                  if (data / "index.json").exists() else 0)
+                  if (data / "index.json").exists() else
+                  planned_frames(argv[argv.index("--task") + 1], int(step.label.split()[2])))
         record = training_record(step)
         if record is not None:
             epochs = record["epochs_run"]
@@ -440,14 +449,14 @@ def epoch_shares(records: list[tuple[Step, dict]]) -> dict[str, float]:
     return {task: sorted(v)[len(v) // 2] for task, v in shares.items()}
 
 
-def episode_seconds(task: str, argv: tuple[str, ...]) -> float:
-    """An evaluation's episode length: its last `--set sim.episode_s=`, else the policy
-    topology's, which `sebvs eval` runs."""
+def episode_seconds(task: str, argv: tuple[str, ...], topology: str = "policy") -> float:
+    """A command's episode length: its last `--set sim.episode_s=`, else its topology's
+    (`sebvs eval` runs <task>_policy.toml, a recording <task>_record.toml)."""
     sets = [v.split("=", 1)[1] for k, v in zip(argv, argv[1:])
             if k == "--set" and v.startswith("sim.episode_s=")]
     if sets:
         return float(sets[-1])
-    topology = ROOT / "topologies" / f"{task}_policy.toml"
+    topology = ROOT / "topologies" / f"{task}_{topology}.toml"
     return float(tomllib.loads(topology.read_text())["actors"]["sim"]["episode_s"])
 
 
