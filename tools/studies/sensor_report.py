@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
                                         PLAN_SEEDS, READ_METRIC, READ_RULE, eval_dir,
-                                        ledger_machines)
+                                        ledger_machines, plan_steps)
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
@@ -158,15 +158,11 @@ def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[st
 
 def eval_machines(out: Path, task: str, rate: int) -> dict[str, list[str]]:
     """{evaluation step label: the CPUs its runs ran on}, from the driver's ledger, for
-    the evaluations of the task and rate that have results (an empty list: run before
-    the ledger named CPUs)."""
-    found = {}
-    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
-        for group, _, _ in EVAL_GROUPS[task]:
-            if (eval_dir(out, task, rate, seed, group) / "results.json").exists():
-                label = f"eval {task} {rate} Hz seed {seed} {group}"
-                found[label] = sorted(ledger_machines(out / LEDGER, label))
-    return found
+    the plan's evaluations of the task and rate that have results (an empty list: run
+    before the ledger named CPUs)."""
+    return {step.label: sorted(ledger_machines(out / LEDGER, step.label))
+            for step in plan_steps(out, 1, {f"{task}{rate}"})
+            if step.kind == "eval" and step.done.exists()}
 
 
 def machines_line(found: dict[str, list[str]]) -> str:
@@ -212,8 +208,7 @@ def report(out: Path) -> tuple[str, dict, bool]:
         done &= complete == len(PLAN_CELLS[task])
         lines += rows + [""]
         metric = tables_metric(task, tables)
-        data["tasks"][task] = {"readings": tables, "rows": {}}
-        data["tasks"][task]["machines"] = {}
+        data["tasks"][task] = {"readings": tables, "rows": {}, "machines": {}}
         for rate in RATES:
             means = row_means(out, task, rate, metric)
             data["tasks"][task]["rows"][rate] = means

@@ -302,9 +302,9 @@ def step_seconds(ledger: Path) -> dict[str, float]:
 
 
 def machine(cpuinfo: str | None = None) -> str:
-    """The CPU a step ran on, as the float results depend on it: torch and Mesa's
-    llvmpipe choose their kernels by the instruction set, so one machine kind with another
-    CPU trains and renders other bits. E.g. "AMD EPYC (family 25, model 17), avx512f, 2
+    """The CPU a step ran on, as the float results depend on it: numpy and torch choose
+    their kernels by the instruction set, so one machine kind with another CPU emulates
+    other event timestamps and trains other weights (docs/scale.md). E.g. "AMD EPYC (family 25, model 17), avx512f, 2
     CPUs"; cpuinfo: /proc/cpuinfo's text (read when None; "" where there is none)."""
     if cpuinfo is None:
         try:
@@ -409,8 +409,8 @@ def planned_frames(task: str, rate: int) -> int:
 
 def step_work(step: Step, epochs: float | None = None) -> float:
     """A step's size in the unit its time scales with: a training's frames (the dataset's,
-    as indexed, or the plan's before it is recorded) times its epochs (those it ran once done, else ``epochs``, else the
-    planned), an evaluation's simulated seconds over all its rows (modalities, and the
+    as indexed, or the plan's before it is recorded) times its epochs (those it ran once
+    done, else ``epochs``, else the planned), an evaluation's simulated seconds over all its rows (modalities, and the
     expert and no action where it has them)."""
     argv = step.argv
     if step.kind == "train":
