@@ -253,6 +253,7 @@ def test_a_stopped_driver_logs_the_time_its_steps_ran(tmp_path, monkeypatch):
         start, end = map(json.loads, (tmp_path / study.LEDGER).read_text().splitlines())
         assert end["exit"] == -signal.SIGTERM and end["machine"] == study.machine()
         assert "seconds" not in start and start["machine"] == study.machine()
+        assert start.get("gl") == end.get("gl") == study.gl_stack()   # None: no GL here
         # a stopped driver starts nothing more
         assert study.run_step(step, log, threading.Event())[1] is None
 
@@ -448,30 +449,60 @@ def test_the_ledger_names_the_cpu_each_run_had():
         assert study.machine("").endswith(" CPUs")          # no /proc/cpuinfo: still a line
 
 
-def test_an_evaluation_stopped_on_another_cpu_starts_again_here(tmp_path, monkeypatch):
+def test_an_evaluation_stopped_on_another_machine_starts_again_here(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
         ledger = tmp_path / study.LEDGER
+        mesa = "llvmpipe (LLVM 15.0.6, 256 bits), 4.5 (Compatibility Profile) Mesa 22.3.6"
+        monkeypatch.setattr(study, "gl_stack", lambda: mesa)
         evals = [s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "eval"]
         step, other_step = evals[0], evals[1]
         finished = step.done.parent / "episodes" / "rgb__nominal_physical.jsonl"
-        finished.parent.mkdir(parents=True)
-        finished.write_text("{}\n")
-        # stopped here before: sebvs eval resumes its finished runs
-        study.append_ledger(ledger, step, 0.0)
-        assert study.start_on_this_cpu(step, ledger) is None and finished.exists()
-        # stopped on another CPU (a start line is enough: a killed run writes no end)
-        monkeypatch.setattr(study, "machine", lambda: "AMD EPYC (family 25, model 1), avx2, 2 CPUs")
-        study.append_ledger(ledger, step, 0.0)
-        study.append_ledger(ledger, other_step, 0.0)
-        monkeypatch.undo()
-        said = study.start_on_this_cpu(step, ledger)
-        assert said and "model 1), avx2" in said and not finished.parent.exists()
-        # a training resumes on any CPU: another draw of the recipe
+
+        def stopped_before(cpu=None, gl=mesa):
+            finished.parent.mkdir(parents=True, exist_ok=True)
+            finished.write_text("{}\n")
+            with monkeypatch.context() as m:
+                m.setattr(study, "gl_stack", lambda: gl)
+                if cpu:
+                    m.setattr(study, "machine", lambda: cpu)
+                study.append_ledger(ledger, step, 0.0)
+                study.append_ledger(ledger, other_step, 0.0)
+
+        # stopped here before (a start line is enough: a killed run writes no end), or
+        # before the ledger named GL stacks: sebvs eval resumes its finished runs
+        stopped_before()
+        stopped_before(gl=None)
+        assert '"gl"' not in ledger.read_text().splitlines()[-1]
+        assert study.start_on_this_machine(step, ledger) is None and finished.exists()
+        # stopped with another GL stack
+        stopped_before(gl="NVIDIA H100/PCIe/SSE2, 4.6.0 NVIDIA 550.54")
+        said = study.start_on_this_machine(step, ledger)
+        assert said and "another GL stack (NVIDIA H100" in said and not finished.parent.exists()
+        assert "CPU" not in said.split(":")[0]
+        # stopped on another CPU
+        ledger.unlink()
+        stopped_before(cpu="AMD EPYC (family 25, model 1), avx2, 2 CPUs")
+        said = study.start_on_this_machine(step, ledger)
+        assert said and "another CPU (AMD EPYC (family 25, model 1), avx2" in said
+        assert not finished.parent.exists()
+        # a training resumes on any machine: another draw of the recipe
         train = next(s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "train")
-        assert study.start_on_this_cpu(train, ledger) is None
+        assert study.start_on_this_machine(train, ledger) is None
 
 
-def test_the_report_names_the_cpu_of_every_evaluation(tmp_path):
+def test_the_ledger_names_the_gl_stack_or_says_why_not(monkeypatch, capsys):
+    with tool_module("studies/sensor_study") as study:
+        study.gl_stack.cache_clear()
+        monkeypatch.setattr(study, "GL_PROBE", "print('llvmpipe (LLVM 15.0.6, 256 bits), 4.5 Mesa')")
+        assert study.gl_stack() == "llvmpipe (LLVM 15.0.6, 256 bits), 4.5 Mesa"
+        study.gl_stack.cache_clear()
+        monkeypatch.setattr(study, "GL_PROBE", "raise SystemExit('no EGL display')")
+        assert study.gl_stack() is None
+        assert "cannot name the GL stack: no EGL display" in capsys.readouterr().err
+        study.gl_stack.cache_clear()
+
+
+def test_the_report_names_the_cpu_and_gl_of_every_evaluation(tmp_path):
     with tool_module("studies/sensor_study") as study, \
             tool_module("studies/sensor_report") as rep:
         evals = [s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "eval"]
@@ -479,19 +510,24 @@ def test_the_report_names_the_cpu_of_every_evaluation(tmp_path):
             s.done.parent.mkdir(parents=True)
             s.done.write_text(json.dumps({"task": "arm", "seed": 100200, "episodes": []}))
         a, b = "AMD EPYC (family 25, model 17), avx512f, 2 CPUs", "Xeon (family 6), avx2, 2 CPUs"
-        lines = [{"label": evals[0].label, "machine": a}, {"label": evals[1].label, "machine": a},
-                 {"label": evals[1].label, "machine": b}, {"label": "train x", "machine": b}]
+        mesa = "llvmpipe (LLVM 15.0.6, 256 bits), 4.5 Mesa 22.3.6"
+        lines = [{"label": evals[0].label, "machine": a, "gl": mesa},
+                 {"label": evals[1].label, "machine": a},
+                 {"label": evals[1].label, "machine": b, "gl": mesa},
+                 {"label": "train x", "machine": b, "gl": "other"}]
         (tmp_path / study.LEDGER).write_text("".join(json.dumps(r) + "\n" for r in lines))
         found = rep.eval_machines(tmp_path, "arm", 30)
-        assert found == {evals[0].label: [a], evals[1].label: [a, b], evals[2].label: []}
+        assert found == {evals[0].label: {"cpus": [a], "gl": [mesa]},
+                         evals[1].label: {"cpus": [a, b], "gl": [mesa]},
+                         evals[2].label: {"cpus": [], "gl": []}}
         line = rep.machines_line(found)
-        assert line.startswith(f"Evaluated on: {a}; {b} (3 evaluations)")
-        assert f"more than one CPU within {evals[1].label}" in line
+        assert line.startswith(f"Evaluated on: {a}; {b}; more than one CPU within {evals[1].label}")
         assert f"no CPU recorded for {evals[2].label}" in line
+        assert f"Rendered with: {mesa}; no GL stack recorded for {evals[2].label} (3 evaluations)." in line
         text, data, _ = rep.report(tmp_path)
         assert line in text and data["tasks"]["arm"]["machines"][30] == found
-        assert rep.machines_line({evals[0].label: []}) == \
-            "Evaluated on: no CPU recorded (1 evaluation)."
+        assert rep.machines_line({evals[0].label: {"cpus": [], "gl": []}}) == \
+            "Evaluated on: no CPU recorded. Rendered with: no GL stack recorded (1 evaluation)."
 
 
 def test_a_training_is_sized_by_the_plans_frames_before_its_dataset_exists(tmp_path, monkeypatch):

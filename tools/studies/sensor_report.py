@@ -156,28 +156,32 @@ def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[st
             for row, cells in per_seed.items()}
 
 
-def eval_machines(out: Path, task: str, rate: int) -> dict[str, list[str]]:
-    """{evaluation step label: the CPUs its runs ran on}, from the driver's ledger, for
-    the plan's evaluations of the task and rate that have results (an empty list: run
-    before the ledger named CPUs)."""
-    return {step.label: sorted(ledger_machines(out / LEDGER, step.label))
+def eval_machines(out: Path, task: str, rate: int) -> dict[str, dict[str, list[str]]]:
+    """{evaluation step label: {"cpus": the CPUs its runs ran on, "gl": the GL stacks they
+    rendered with}}, from the driver's ledger, for the plan's evaluations of the task and
+    rate that have results (an empty list: run before the ledger named them)."""
+    return {step.label: {"cpus": sorted(ledger_machines(out / LEDGER, step.label)),
+                         "gl": sorted(ledger_machines(out / LEDGER, step.label, "gl"))}
             for step in plan_steps(out, 1, {f"{task}{rate}"})
             if step.kind == "eval" and step.done.exists()}
 
 
-def machines_line(found: dict[str, list[str]]) -> str:
-    """Where the evaluations ran, in one sentence: the report names the machine of every
-    reading, as no reading may pair rows made on different CPUs (docs/scale.md)."""
-    cpus = sorted({m for ms in found.values() for m in ms})
-    mixed = [label for label, ms in found.items() if len(ms) > 1]
-    unknown = [label for label, ms in found.items() if not ms]
-    text = (f"Evaluated on: {'; '.join(cpus) if cpus else 'no CPU recorded'} "
-            f"({len(found)} evaluation{'s' * (len(found) != 1)})")
-    if mixed:
-        text += f"; more than one CPU within {', '.join(mixed)}"
-    if unknown and cpus:
-        text += f"; no CPU recorded for {', '.join(unknown)}"
-    return text + "."
+def machines_line(found: dict[str, dict[str, list[str]]]) -> str:
+    """Where the evaluations ran, in one sentence: the report names the CPU and GL stack of
+    every reading, as no reading may pair rows made on different ones (docs/scale.md)."""
+    parts = []
+    for key, what in (("cpus", "CPU"), ("gl", "GL stack")):
+        seen = sorted({m for ms in found.values() for m in ms[key]})
+        mixed = [label for label, ms in found.items() if len(ms[key]) > 1]
+        unknown = [label for label, ms in found.items() if not ms[key]]
+        part = "; ".join(seen) if seen else f"no {what} recorded"
+        if mixed:
+            part += f"; more than one {what} within {', '.join(mixed)}"
+        if unknown and seen:
+            part += f"; no {what} recorded for {', '.join(unknown)}"
+        parts.append(part)
+    return (f"Evaluated on: {parts[0]}. Rendered with: {parts[1]} ({len(found)} "
+            f"evaluation{'s' * (len(found) != 1)}).")
 
 
 def rows_table(task: str, rate: int, means: dict[str, dict[str, float]]) -> list[str]:

@@ -19,7 +19,8 @@ record  a dataset whose index holds the planned episode count is done, and one w
 train   a checkpoint file <task>-<modality>.pt in the seed's directory is done
 eval    an evaluation directory with results.json is done (`sebvs eval` itself resumes
         the finished runs of an interrupted one, unless the ledger says it was
-        interrupted on another CPU: then it starts again, so that it runs whole on one)
+        interrupted on another CPU or GL stack: then it starts again, so that it runs
+        whole on one)
 read    tools/studies/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
         rule, into OUT/read/<task><rate>.json and .png (nav joins each seed's two
         evaluation groups); tools/studies/sensor_report.py then builds the report's tables
@@ -40,15 +41,16 @@ ADDRESS, or a local Ray): the same episodes and results either way.
 Output under --out (default studies/sensors, which the repository tracks) and the datasets
 under datasets/ (which it does not: they are gigabytes, and the driver records them again
 from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl (its
-label, start, seconds, exit code and CPU; `status` times the steps from it); with --commit,
-each step that finishes is committed at once, its outputs and that line, so that a study
-spread over sessions survives a new checkout: what it needs again is then only the
-datasets of the trainings still to run. The driver's log, OUT/log.txt (each step's start
+label, start, seconds, exit code, CPU and GL stack; `status` times the steps from it);
+with --commit, each step that finishes is committed at once, its outputs and that line,
+so that a study spread over sessions survives a new checkout: what it needs again is
+then only the datasets of the trainings still to run. The driver's log, OUT/log.txt (each step's start
 and exit), and each step's own output, OUT/logs/<step>.txt, are not tracked.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -323,15 +325,52 @@ def machine(cpuinfo: str | None = None) -> str:
     return ", ".join([name, *([widest] if widest else []), f"{os.cpu_count()} CPUs"])
 
 
+# Opens a context the way sebvs renders (sebvs.sim.render sets MUJOCO_GL's default) and
+# prints the renderer and version OpenGL reports.
+GL_PROBE = """
+import sebvs.sim.render
+import mujoco
+from OpenGL import GL
+ctx = mujoco.GLContext(1, 1)
+ctx.make_current()
+print(GL.glGetString(GL.GL_RENDERER).decode(), GL.glGetString(GL.GL_VERSION).decode(), sep=", ")
+ctx.free()
+"""
+
+
+@functools.cache
+def gl_stack() -> str | None:
+    """The OpenGL the steps render with, as a context opened with the driver's environment
+    reports it (renders differ between GL stacks as events do between CPUs, so no reading
+    may mix them either), e.g. "llvmpipe (LLVM 15.0.6, 256 bits), 4.5 (Compatibility
+    Profile) Mesa 22.3.6"; None, said once on stderr, where no context opens. Asked once
+    per driver: the stack does not change under a running driver."""
+    try:
+        probe = subprocess.run([sys.executable, "-c", GL_PROBE], capture_output=True,
+                               text=True, timeout=120, cwd=ROOT)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        reason = str(e)
+    else:
+        found = probe.stdout.strip().splitlines()
+        if probe.returncode == 0 and found:
+            return found[-1]
+        reason = (probe.stderr.strip().splitlines() or [f"exit code {probe.returncode}"])[-1]
+    print(f"sensor study: the ledger cannot name the GL stack: {reason}", file=sys.stderr)
+    return None
+
+
 def append_ledger(ledger: Path, step: Step, started: float, seconds: float | None = None,
                   code: int | None = None) -> None:
     """A line for a run of a step, written whole in one append (trainings run side by side),
-    with the machine it ran on (machine()): at its start without seconds and exit code (so
-    that a run killed before it could write its end still names its CPU), at its end with
-    them."""
+    with the machine it ran on (machine(), and gl_stack() where it is known): at its start
+    without seconds and exit code (so that a run killed before it could write its end
+    still names its machine), at its end with them."""
     rec = {"label": step.label, "started": time.strftime("%Y-%m-%d %H:%M:%S",
                                                          time.localtime(started)),
            "machine": machine()}
+    gl = gl_stack()
+    if gl is not None:
+        rec["gl"] = gl
     if seconds is not None:
         rec.update(seconds=round(seconds, 1), exit=code)
     with ledger.open("a") as f:
@@ -549,27 +588,33 @@ def stop_running(signum: int, frame) -> None:
                 proc.send_signal(signum)
 
 
-def ledger_machines(ledger: Path, label: str) -> set[str]:
-    """The CPUs the ledger says earlier runs of this step ran on."""
-    return {rec["machine"] for rec in read_ledger(ledger)
-            if rec["label"] == label and isinstance(rec.get("machine"), str)}
+def ledger_machines(ledger: Path, label: str, key: str = "machine") -> set[str]:
+    """What the ledger says earlier runs of this step ran on: their CPUs (key "machine"),
+    or their GL stacks (key "gl"; runs from before the ledger named them have none)."""
+    return {rec[key] for rec in read_ledger(ledger)
+            if rec["label"] == label and isinstance(rec.get(key), str)}
 
 
-def start_on_this_cpu(step: Step, ledger: Path) -> str | None:
-    """An evaluation runs whole on one CPU: its RGB+Event and RGB+Diff rows are read as a
-    pair, and another CPU plays other events (docs/scale.md, "Determinism"). So when an
-    earlier, stopped run of it was made on another CPU, the runs it finished (its
-    episodes/ directory, which `sebvs eval` would resume from) are removed; returns what
-    was done, for the log, or None."""
+def start_on_this_machine(step: Step, ledger: Path) -> str | None:
+    """An evaluation runs whole on one CPU and GL stack: its RGB+Event and RGB+Diff rows
+    are read as a pair, and another CPU plays other events, another GL stack renders
+    other frames (docs/scale.md, "Determinism"). So when an earlier, stopped run of it was
+    made on another CPU, or with another GL stack where both are known, the runs it
+    finished (its episodes/ directory, which `sebvs eval` would resume from) are removed;
+    returns what was done, for the log, or None."""
     episodes = step.done.parent / "episodes"
     if step.kind != "eval" or not episodes.exists():
         return None
-    other = ledger_machines(ledger, step.label) - {machine()}
-    if not other:
+    here = {"machine": machine(), "gl": gl_stack()}
+    other = {key: ledger_machines(ledger, step.label, key) - {value}
+             for key, value in here.items() if value is not None}
+    said = [f"another {'CPU' if key == 'machine' else 'GL stack'} ({'; '.join(sorted(v))})"
+            for key, v in other.items() if v]
+    if not said:
         return None
     shutil.rmtree(episodes)
-    return (f"its finished runs were made on another CPU ({'; '.join(sorted(other))}): "
-            f"removed, the evaluation starts again on this one ({machine()})")
+    return (f"its finished runs were made with {' and '.join(said)}: removed, the "
+            f"evaluation starts again on this machine ({machine()}; {here['gl']})")
 
 
 def step_log(log: Path, step: Step) -> Path:
@@ -590,7 +635,7 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
     output = step_log(log, step)
     output.parent.mkdir(parents=True, exist_ok=True)
     header = f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {step.label}\n{shlex.join(argv)}\n"
-    restarted = start_on_this_cpu(step, log.parent / LEDGER)
+    restarted = start_on_this_machine(step, log.parent / LEDGER)
     if restarted:
         header += f"(restarted: {restarted})\n"
     append_ledger(log.parent / LEDGER, step, started)
