@@ -44,8 +44,9 @@ from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl
 label, start, seconds, exit code, CPU and GL stack; `status` times the steps from it);
 with --commit, each step that finishes is committed at once, its outputs and that line,
 so that a study spread over sessions survives a new checkout: what it needs again is
-then only the datasets of the trainings still to run. The driver's log, OUT/log.txt (each step's start
-and exit), and each step's own output, OUT/logs/<step>.txt, are not tracked.
+then only the datasets of the trainings still to run. The driver's log, OUT/log.txt
+(each step's start and exit), and each step's own output, OUT/logs/<step>.txt, are not
+tracked.
 """
 from __future__ import annotations
 
@@ -306,8 +307,9 @@ def step_seconds(ledger: Path) -> dict[str, float]:
 def machine(cpuinfo: str | None = None) -> str:
     """The CPU a step ran on, as the float results depend on it: numpy and torch choose
     their kernels by the instruction set, so one machine kind with another CPU emulates
-    other event timestamps and trains other weights (docs/scale.md). E.g. "AMD EPYC (family 25, model 17), avx512f, 2
-    CPUs"; cpuinfo: /proc/cpuinfo's text (read when None; "" where there is none)."""
+    other event timestamps and trains other weights (docs/scale.md). E.g. "AMD EPYC
+    (family 25, model 17), avx512f, 2 CPUs"; cpuinfo: /proc/cpuinfo's text (read when
+    None; "" where there is none)."""
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text()
@@ -449,8 +451,8 @@ def planned_frames(task: str, rate: int) -> int:
 def step_work(step: Step, epochs: float | None = None) -> float:
     """A step's size in the unit its time scales with: a training's frames (the dataset's,
     as indexed, or the plan's before it is recorded) times its epochs (those it ran once
-    done, else ``epochs``, else the planned), an evaluation's simulated seconds over all its rows (modalities, and the
-    expert and no action where it has them)."""
+    done, else ``epochs``, else the planned), an evaluation's simulated seconds over all
+    its rows (modalities, and the expert and no action where it has them)."""
     argv = step.argv
     if step.kind == "train":
         data = Path(argv[argv.index("--data") + 1])
@@ -614,7 +616,7 @@ def start_on_this_machine(step: Step, ledger: Path) -> str | None:
         return None
     shutil.rmtree(episodes)
     return (f"its finished runs were made with {' and '.join(said)}: removed, the "
-            f"evaluation starts again on this machine ({machine()}; {here['gl']})")
+            f"evaluation starts again on this machine ({here['machine']}; {here['gl']})")
 
 
 def step_log(log: Path, step: Step) -> Path:
@@ -721,6 +723,8 @@ def main(argv: list[str] | None = None) -> int:
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:     # a background job's stays
         signal.signal(signal.SIGINT, stop_running)
     print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
+    gl_stack()      # asked here, before the steps' threads, so that it is asked (and a
+                    # failure said) once, not by two trainings starting side by side
     for note in notes:
         print(note, file=sys.stderr)
     order = args.only.split(",") if args.only else list(dict.fromkeys(map(step_cell, steps)))
