@@ -74,7 +74,10 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
                             _episode("rgb+diff", "flicker_100", "indoor", k, 0.4)]
                 if seed == 0:
                     main += [_episode("expert", "hdr", "indoor", k, 1.0),
-                             _episode("no_action", "hdr", "indoor", k, 0.1 * (k % 2))]
+                             _episode("expert", "nominal_physical", "indoor", k, 1.0),
+                             _episode("no_action", "hdr", "indoor", k, 0.1 * (k % 2)),
+                             _episode("no_action", "nominal_physical", "indoor", k,
+                                      0.1 * (k % 2) if k else 0.2)]
             for group, episodes in (("main", main), ("flicker", flicker)):
                 d = study.eval_dir(tmp_path, "nav", 10, seed, group)
                 d.mkdir(parents=True)
@@ -99,6 +102,11 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert "**no clear difference**" in lines["nominal_physical/indoor"]
         assert "no reading" in lines["flicker_100/indoor"]
         assert "not yet run" in lines["dusk/outdoor"]
+        # the expert plays the same episodes in both cells, no action differs in one
+        assert data["tasks"]["nav"]["alike"][10] == {
+            "expert": [["nominal_physical/indoor", "hdr/indoor"]]}
+        assert "expert in nominal_physical/indoor = hdr/indoor." in text
+        assert "no_action in" not in text and data["tasks"]["nav"]["alike"][30] == {}
         means = data["tasks"]["nav"]["rows"][10]
         assert means["rgb+event"]["hdr/indoor"] == pytest.approx(0.8)
         assert means["no_action"]["hdr/indoor"] == pytest.approx(0.05)

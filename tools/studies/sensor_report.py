@@ -9,8 +9,10 @@ Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff 
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
 interval, how many seeds are ahead / behind, the rule's verdict), and beside it what the
 plan's physics predicted and whether that held. Below it, per rate, the descriptive rows:
-each modality's mean (over its training seeds), the expert and no action, per cell, and
-the CPUs the evaluations ran on (the driver's ledger, OUT/steps.jsonl).
+each modality's mean (over its training seeds), the expert and no action, per cell, the
+cells in which the expert or no action played the same episodes (alike_cells: their
+figures repeat there, and the line says why), and the CPUs and GL stacks the evaluations
+ran on (the driver's ledger, OUT/steps.jsonl).
 
 Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
 JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What the physics
@@ -156,6 +158,53 @@ def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[st
             for row, cells in per_seed.items()}
 
 
+REFERENCE_ROWS = ("expert", "no_action")
+
+
+def alike_cells(out: Path, task: str, rate: int) -> dict[str, list[list[str]]]:
+    """{reference row: the groups of two or more cells in which it scored alike, episode by
+    episode (the same test seeds, every metric of every episode equal)}, over every
+    evaluation found for the task and rate.
+
+    The expert drives on the ideal render through a colour detector that reads hue and
+    chroma, which neither the light nor the scene variant changes, and no action holds
+    still: both play the same episodes wherever the target moves the same way. The report
+    says where, so that a figure repeated across cells reads as what it is."""
+    episodes: dict[tuple[str, str], list[tuple[int, str]]] = {}
+    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
+        for group, _, _ in EVAL_GROUPS[task]:
+            path = eval_dir(out, task, rate, seed, group) / "results.json"
+            if not path.exists():
+                continue
+            for e in read_results(path)["episodes"]:
+                if e["modality"] in REFERENCE_ROWS:
+                    episodes.setdefault((e["modality"], f"{e['condition']}/{e['scenario']}"),
+                                        []).append((e["seed"], json.dumps(e["metrics"],
+                                                                         sort_keys=True)))
+    groups: dict[str, dict[tuple, list[str]]] = {}
+    for (row, cell), played in episodes.items():
+        groups.setdefault(row, {}).setdefault(tuple(sorted(played)), []).append(cell)
+    order = {f"{c}/{s}": i for i, (c, s) in enumerate(PLAN_CELLS[task])}
+    alike = {}
+    for row in REFERENCE_ROWS:
+        same = [sorted(cells, key=lambda c: order.get(c, len(order)))
+                for cells in groups.get(row, {}).values() if len(cells) > 1]
+        if same:
+            alike[row] = same
+    return alike
+
+
+def alike_line(alike: dict[str, list[list[str]]]) -> str:
+    """The reference rows that repeat across cells, and why, in one paragraph."""
+    said = "; ".join(f"{row} in {' = '.join(cells)}" for row, groups in alike.items()
+                     for cells in groups)
+    return (f"Alike, episode by episode (same test seeds, every metric equal): {said}. The "
+            f"expert reads the ideal render through a colour detector that finds the target "
+            f"by hue and chroma (sebvs/experts/detector.py), which neither the light nor the "
+            f"scene variant changes, and no action holds still, so both repeat wherever the "
+            f"target moves the same way.")
+
+
 def eval_machines(out: Path, task: str, rate: int) -> dict[str, dict[str, list[str]]]:
     """{evaluation step label: {"cpus": the CPUs its runs ran on, "gl": the GL stacks they
     rendered with}}, from the driver's ledger, for the plan's evaluations of the task and
@@ -219,6 +268,10 @@ def report(out: Path) -> tuple[str, dict, bool]:
             lines += [f"{task} at {rate} Hz, every row ({metric}, %, mean over the seeds "
                       f"each modality was trained with; test seed episodes):", "",
                       *rows_table(task, rate, means), ""]
+            alike = alike_cells(out, task, rate)
+            data["tasks"][task].setdefault("alike", {})[rate] = alike
+            if alike:
+                lines += [alike_line(alike), ""]
             found = eval_machines(out, task, rate)
             data["tasks"][task]["machines"][rate] = found
             if found:
