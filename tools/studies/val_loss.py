@@ -35,43 +35,75 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 
-def recompute(pt: Path, data: Path) -> dict:
-    """The checkpoint's validation loss on ``data`` now, beside the one its record holds."""
-    import torch
-    from torch.utils.data import DataLoader
+def episodes_named(data: Path, task: str, names: list[str], what: str) -> list[dict]:
+    """The dataset's index entries of these episode files, in the index's order (the order
+    training used: its split keeps it); ValueError naming what is missing."""
+    from sebvs.policy.dataset import load_index
+    episodes = [e for e in load_index(data, task) if e["file"] in set(names)]
+    missing = sorted(set(names) - {e["file"] for e in episodes})
+    if missing:
+        raise ValueError(f"{data}: lacks {len(missing)} of the checkpoint's {what} episodes "
+                         f"({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''})")
+    return episodes
 
+
+def validation_of(pt: Path, data: Path):
+    """(model, its config, the dataset's entries of the checkpoint's validation episodes),
+    from the checkpoint's JSON record; ValueError when the record or the dataset lacks
+    them."""
     from sebvs.policy.checkpoint import load_checkpoint
-    from sebvs.policy.dataset import EpisodeFrames, load_index
-    from sebvs.policy.train import _collate, _epoch
-
     model, cfg, norm = load_checkpoint(pt)
     record, training = cfg.get("dataset", {}), cfg.get("training", {})
     names = record.get("val_episodes")
     if not names or "best_val_loss" not in training:
         raise ValueError(f"{pt.with_suffix('.json')}: no validation episodes or best "
                          f"validation loss in its record")
-    episodes = [e for e in load_index(data, cfg["task"]) if e["file"] in set(names)]
-    missing = sorted(set(names) - {e["file"] for e in episodes})
-    if missing:
-        raise ValueError(f"{data}: lacks {len(missing)} of the checkpoint's validation "
-                         f"episodes ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''})")
-    # the order training used: its split keeps the index's order
-    val = EpisodeFrames(data, episodes, cfg["task"], cfg["modality"], norm,
-                        max(1, training["max_frames"] // 4) if training.get("max_frames") else 0)
-    loader = DataLoader(val, batch_size=training.get("batch", 32), shuffle=False,
+    return model, cfg, norm, episodes_named(data, cfg["task"], names, "validation")
+
+
+def criterion_of(training: dict):
+    """The training's loss (its record's "loss": mse, else Smooth L1), mean over a batch."""
+    import torch
+    return torch.nn.MSELoss() if training.get("loss", "mse") == "mse" else torch.nn.SmoothL1Loss()
+
+
+def frames_of(data: Path, episodes: list[dict], cfg: dict, norm):
+    """The frames training would have validated on from these episodes (its max_frames
+    rule: a quarter of the training's cap, spread over them)."""
+    from sebvs.policy.dataset import EpisodeFrames
+    training = cfg.get("training", {})
+    return EpisodeFrames(data, episodes, cfg["task"], cfg["modality"], norm,
+                         max(1, training["max_frames"] // 4) if training.get("max_frames") else 0)
+
+
+def mean_loss(model, frames, training: dict) -> float:
+    """The model's loss per frame over ``frames``, as training's validation pass takes it
+    (same loss, batch and order, one torch thread); the frames are closed after."""
+    import torch
+    from torch.utils.data import DataLoader
+
+    from sebvs.policy.train import _collate, _epoch
+    loader = DataLoader(frames, batch_size=training.get("batch", 32), shuffle=False,
                         collate_fn=_collate)
-    criterion = (torch.nn.MSELoss() if training.get("loss", "mse") == "mse"
-                 else torch.nn.SmoothL1Loss())
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        now = _epoch(model, loader, criterion, None, "val", False, "cpu")
+        return _epoch(model, loader, criterion_of(training), None, "val", False, "cpu")
     finally:
         torch.set_num_threads(threads)
-        val.close()
+        frames.close()
+
+
+def recompute(pt: Path, data: Path) -> dict:
+    """The checkpoint's validation loss on ``data`` now, beside the one its record holds."""
+    model, cfg, norm, episodes = validation_of(pt, data)
+    training = cfg["training"]
+    val = frames_of(data, episodes, cfg, norm)
+    frames = len(val)
+    now = mean_loss(model, val, training)
     then = float(training["best_val_loss"])
     return {"checkpoint": str(pt), "dataset": str(data), "modality": cfg["modality"],
-            "val_frames": len(val), "val_loss_now": now, "val_loss_recorded": then,
+            "val_frames": frames, "val_loss_now": now, "val_loss_recorded": then,
             "relative_difference": abs(now - then) / max(abs(then), 1e-30)}
 
 
