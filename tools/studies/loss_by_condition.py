@@ -192,12 +192,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n\n".join(__doc__.split("\n\n")[1:]))
-    ap.add_argument("dataset", type=Path, help="the dataset the checkpoints were trained on")
+    ap.add_argument("dataset", type=Path,
+                    help="the recording to measure on: the one the checkpoints were trained "
+                         "on (their validation episodes), or a held-out one (--held-out-from)")
     ap.add_argument("checkpoints", type=Path, nargs="+",
                     help=".pt files, each with its .json record beside it")
     ap.add_argument("--by", default="lighting,variant",
                     help="the episodes' `conditions` keys to group by, comma-separated "
-                         "(default lighting,variant; the arm: lighting,conveyor,targets)")
+                         "(default lighting,variant; the arm: lighting,conveyor,objects)")
     ap.add_argument("--held-out-from", type=Path, default=None, metavar="TRAIN_DATA",
                     help="measure on every episode of DATASET instead, a recording the "
                          "checkpoints never saw (refused if an episode shares a seed with "
