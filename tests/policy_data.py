@@ -92,3 +92,16 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
             w.finish("synthetic")
         index.add(make_entry(path))
     return root
+
+
+def copy_without(root: str | Path, out: str | Path, file: str) -> Path:
+    """A copy of the dataset at ``root`` in ``out`` whose index lacks the episode ``file``
+    (the file itself stays): a recording missing one episode a checkpoint names."""
+    import json
+    import shutil
+    out = Path(out)
+    shutil.copytree(root, out)
+    index = json.loads((out / "index.json").read_text())
+    index["episodes"] = [e for e in index["episodes"] if e["file"] != file]
+    (out / "index.json").write_text(json.dumps(index))
+    return out

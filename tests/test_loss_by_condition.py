@@ -6,7 +6,7 @@ import pytest
 
 from sebvs.policy.inputs import Normalisation
 from sebvs.policy.train import train
-from tests.policy_data import make_dataset
+from tests.policy_data import copy_without, make_dataset
 from tests.tools_loader import tool_module
 
 
@@ -87,14 +87,9 @@ def test_a_constant_model_has_no_skill(trained, monkeypatch):
 
 
 def test_a_dataset_without_the_training_episodes_is_refused(trained, tmp_path, capsys):
-    import shutil
     data, pt = trained
-    short = tmp_path / "short"
-    shutil.copytree(data, short)
     trained_on = json.loads(pt.with_suffix(".json").read_text())["dataset"]["train_episodes"]
-    index = json.loads((short / "index.json").read_text())
-    index["episodes"] = [e for e in index["episodes"] if e["file"] != trained_on[0]]
-    (short / "index.json").write_text(json.dumps(index))
+    short = copy_without(data, tmp_path / "short", trained_on[0])
     with tool_module("studies/loss_by_condition") as tool:
         assert tool.main([str(short), str(pt)]) == 2
     assert f"lacks 1 of the checkpoint's training episodes ({trained_on[0]})" in \

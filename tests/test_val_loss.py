@@ -7,7 +7,7 @@ import pytest
 
 from sebvs.policy.inputs import Normalisation
 from sebvs.policy.train import train
-from tests.policy_data import make_dataset
+from tests.policy_data import copy_without, make_dataset
 from tests.tools_loader import tool_module
 
 
@@ -45,14 +45,9 @@ def test_one_changed_validation_frame_is_seen(trained, tmp_path):
 
 
 def test_a_dataset_without_the_validation_episodes_is_refused(trained, tmp_path, capsys):
-    import shutil
     data, pt = trained
-    short = tmp_path / "short"
-    shutil.copytree(data, short)
     val = json.loads(pt.with_suffix(".json").read_text())["dataset"]["val_episodes"]
-    index = json.loads((short / "index.json").read_text())
-    index["episodes"] = [e for e in index["episodes"] if e["file"] != val[0]]
-    (short / "index.json").write_text(json.dumps(index))
+    short = copy_without(data, tmp_path / "short", val[0])
     with tool_module("studies/val_loss") as tool:
         assert tool.main([str(pt), str(short)]) == 2
         assert f"lacks 1 of the checkpoint's validation episodes ({val[0]})" in \
