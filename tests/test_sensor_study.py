@@ -7,6 +7,21 @@ import pytest
 from tests.tools_loader import tool_module
 
 
+@pytest.fixture(autouse=True)
+def no_real_datasets(tmp_path, monkeypatch):
+    """Every test's study datasets under its own tmp_path: a step's `done` file of a
+    recording is the dataset's index.json, and a test that removes its steps' done files
+    once removed datasets/study_nav30/index.json from under a running study."""
+    monkeypatch.setenv("SEBVS_STUDY_DATASETS", str(tmp_path / "study-datasets"))
+
+
+def test_the_datasets_of_a_test_are_never_the_real_ones(tmp_path):
+    with tool_module("studies/sensor_study") as study:
+        records = [s for s in study.plan_steps(tmp_path, 2, None) if s.kind == "record"]
+    assert len(records) == 4
+    assert all(s.done.is_relative_to(tmp_path) for s in records)
+
+
 def test_the_steps_are_the_plans():
     with tool_module("studies/sensor_study") as study:
         steps = study.plan_steps(study.ROOT / "out" / "x", 2, None)
@@ -409,7 +424,8 @@ def test_run_commit_keeps_each_step_that_finishes_and_says_when_it_cannot(tmp_pa
         # without --commit, nothing is
         committed.clear()
         for s in study.plan_steps(tmp_path, 2, {"nav30"}):
-            s.done.unlink(missing_ok=True)
+            if s.kind == "train":
+                s.done.unlink(missing_ok=True)
         assert study.main(argv[:-1]) == 1 and committed == []
 
 

@@ -40,7 +40,7 @@ ADDRESS, or a local Ray): the same episodes and results either way.
 
 Output under --out (default studies/sensors, which the repository tracks) and the datasets
 under datasets/ (which it does not: they are gigabytes, and the driver records them again
-from the plan's commands). Every run of a step appends a line to OUT/steps.jsonl (its
+from the plan's commands; $SEBVS_STUDY_DATASETS puts them elsewhere). Every run of a step appends a line to OUT/steps.jsonl (its
 label, start, seconds, exit code, CPU and GL stack; `status` times the steps from it);
 with --commit, each step that finishes is committed at once, its outputs and that line,
 so that a study spread over sessions survives a new checkout: what it needs again is
@@ -131,8 +131,15 @@ def sets(values: list[str]) -> list[str]:
     return [a for v in values for a in ("--set", v)]
 
 
+DATASETS_ENV = "SEBVS_STUDY_DATASETS"
+
+
 def dataset_dir(task: str, rate: int) -> Path:
-    return ROOT / "datasets" / f"study_{task}{rate}"
+    """Where the study's recording of a task and rate lives: datasets/study_<task><rate>,
+    under $SEBVS_STUDY_DATASETS instead of datasets/ when it is set (another disk; the
+    tests, which must never touch a study's real recordings)."""
+    root = os.environ.get(DATASETS_ENV)
+    return (Path(root) if root else ROOT / "datasets") / f"study_{task}{rate}"
 
 
 def checkpoint_dir(out: Path, task: str, rate: int, seed: int) -> Path:
