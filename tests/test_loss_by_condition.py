@@ -111,3 +111,25 @@ def test_a_held_out_recording_is_measured_whole_and_must_be_held_out(trained, tm
         # the training recording itself is not held out from itself
         assert tool.main([str(data), str(pt), "--held-out-from", str(data)]) == 2
     assert "episodes have the seed of one in" in capsys.readouterr().err
+
+
+def test_ablating_the_part_a_policy_reads_costs_its_skill(tmp_path):
+    """A two-stream nav policy whose target shows in the frame's brightness: mean-ablating
+    the frame takes its skill away, ablating the event planes (which a "gain" target does
+    not need) costs little; a one-stream policy has nothing to ablate beside another."""
+    data = make_dataset(tmp_path / "data", episodes=10, frames=16, target="gain")
+    train(data, tmp_path / "ckpt", "nav", ["rgb+event", "rgb"], epochs=6, batch=8,
+          val_fraction=0.4, norm=Normalisation(size=32), progress=False, log=lambda s: None)
+    pt = tmp_path / "ckpt" / "nav-rgb+event.pt"
+    with tool_module("studies/loss_by_condition") as tool:
+        whole, no_rgb, no_events = (tool.measure(data, pt, ["scene"], ablate=a)["groups"]["-"]
+                                    for a in (None, "rgb", "second"))
+        assert whole["skill"] > 0.3
+        assert no_rgb["skill"] < whole["skill"] - 0.3
+        assert no_events["skill"] > whole["skill"] - 0.1
+        assert no_rgb["constant_loss"] == whole["constant_loss"]
+        _, cfg, _, _ = tool.validation_of(pt, data)
+        assert tool.ablated_channels(cfg, "rgb") == [0, 1, 2]
+        assert tool.ablated_channels(cfg, "second") == [3, 4]
+        assert tool.main([str(data), str(tmp_path / "ckpt" / "nav-rgb.pt"),
+                          "--ablate", "second"]) == 2

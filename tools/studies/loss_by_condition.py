@@ -3,7 +3,7 @@
 
     tools/studies/loss_by_condition.py DATASET CHECKPOINT.pt [CHECKPOINT.pt ...]
                                        [--by lighting,variant] [--held-out-from TRAIN_DATA]
-                                       [--json OUT] [--plot OUT.png]
+                                       [--ablate rgb|second] [--json OUT] [--plot OUT.png]
 
 A closed-loop figure mixes two failures: the policy cannot tell the expert's command from
 its input (the sensor shows too little, or the policy learned too little of it), or it can
@@ -20,6 +20,10 @@ between checkpoints; the episodes and frames of each are printed beside it. A va
 split holds few episodes of a rare setting; --held-out-from TRAIN_DATA measures instead on
 every episode of DATASET, a recording made for the purpose on seeds the training recording
 never used (refused otherwise), the constant then from TRAIN_DATA's training episodes.
+
+--ablate rgb | second replaces one part of a two-stream input (the frame; or the events,
+or the frame difference) by its mean level over the frames measured: the skill lost is how
+much the policy draws on that part there (a policy that ignores it loses nothing).
 
 Printed: per group, the constant loss and each checkpoint's loss and skill; then per
 modality the mean skill over its checkpoints. --plot draws the skill per group and
@@ -77,6 +81,45 @@ def constant_loss(model, cfg: dict, frames, constant) -> float:
         return float(criterion_of(cfg["training"])(constant.expand_as(targets), targets))
 
 
+RGB_CHANNELS = ("r", "g", "b")
+
+
+def ablated_channels(cfg: dict, part: str) -> list[int]:
+    """The input channels of one part of the checkpoint's input, by its record's
+    channel_order: "rgb" the frame's r, g, b; "second" the rest (the events' planes, or the
+    frame difference's up / down). ValueError where the model has no such part."""
+    order = cfg.get("channel_order") or []
+    picked = [i for i, name in enumerate(order) if (name in RGB_CHANNELS) == (part == "rgb")]
+    if not picked or len(picked) == len(order):
+        raise ValueError(f"modality {cfg.get('modality')!r} (channels {order}) has no "
+                         f"{part!r} part to ablate beside another")
+    return picked
+
+
+class MeanAblated:
+    """Items of ``frames`` with some input channels replaced by their mean over the frames
+    (one number per channel, from every k-th frame): what the model sees when that input
+    carries nothing but its average level."""
+
+    def __init__(self, frames, channels: list[int], sample: int = 200):
+        self.frames, self.channels = frames, channels
+        step = max(1, len(frames) // sample)
+        xs = [frames[i][0][channels] for i in range(0, len(frames), step)]
+        self.level = sum(x.mean(axis=(1, 2)) for x in xs) / max(len(xs), 1)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i: int):
+        x, y = self.frames[i]
+        x = x.copy()
+        x[self.channels] = self.level[:, None, None]
+        return x, y
+
+    def close(self) -> None:
+        self.frames.close()
+
+
 def held_out(pt: Path, data: Path, train_data: Path):
     """(model, its config, norm, every episode of ``data``): a recording the checkpoint never
     saw. Refused (ValueError) where an episode of it has the seed of one in ``train_data``,
@@ -94,11 +137,13 @@ def held_out(pt: Path, data: Path, train_data: Path):
     return model, cfg, norm, episodes
 
 
-def measure(data: Path, pt: Path, by: list[str], train_data: Path | None = None) -> dict:
-    """{checkpoint, modality, task, on, groups: {group: {episodes, frames, loss,
+def measure(data: Path, pt: Path, by: list[str], train_data: Path | None = None,
+            ablate: str | None = None) -> dict:
+    """{checkpoint, modality, task, on, ablated, groups: {group: {episodes, frames, loss,
     constant_loss, skill}}}: over the checkpoint's validation episodes in ``data`` or, given
     ``train_data`` (the recording it was trained on, whose training episodes then give the
-    constant), over every episode of ``data``, a held-out recording (every frame)."""
+    constant), over every episode of ``data``, a held-out recording (every frame).
+    ``ablate`` ("rgb" or "second"): that part of the input mean-ablated (MeanAblated)."""
     from sebvs.policy.dataset import EpisodeFrames
     if train_data is None:
         model, cfg, norm, episodes = validation_of(pt, data)
@@ -106,6 +151,7 @@ def measure(data: Path, pt: Path, by: list[str], train_data: Path | None = None)
     else:
         model, cfg, norm, episodes = held_out(pt, data, train_data)
         constant = constant_of(model, cfg, norm, train_data)
+    channels = ablated_channels(cfg, ablate) if ablate else None
     groups: dict[str, list[dict]] = {}
     for e in episodes:
         groups.setdefault(group_of(e, by), []).append(e)
@@ -115,12 +161,15 @@ def measure(data: Path, pt: Path, by: list[str], train_data: Path | None = None)
                   EpisodeFrames(data, members, cfg["task"], cfg["modality"], norm))
         n = len(frames)
         base = constant_loss(model, cfg, frames, constant)
+        if channels is not None:
+            frames = MeanAblated(frames, channels)
         loss = mean_loss(model, frames, cfg["training"])          # closes the frames
         out[group] = {"episodes": len(members), "frames": n, "loss": loss,
                       "constant_loss": base,
                       "skill": 1.0 - loss / base if base > 0 else None}
     return {"checkpoint": str(pt), "modality": cfg["modality"], "task": cfg["task"],
-            "on": "validation" if train_data is None else "held-out", "groups": out}
+            "on": "validation" if train_data is None else "held-out", "ablated": ablate,
+            "groups": out}
 
 
 def modality_skill(results: list[dict]) -> dict[str, dict[str, float]]:
@@ -205,6 +254,10 @@ def main(argv: list[str] | None = None) -> int:
                          "checkpoints never saw (refused if an episode shares a seed with "
                          "TRAIN_DATA, the recording they were trained on, whose training "
                          "episodes then give the constant)")
+    ap.add_argument("--ablate", choices=["rgb", "second"], default=None,
+                    help="replace one part of each input by its mean level over the frames "
+                         "measured: rgb the frame, second the other stream (the events, or "
+                         "the frame difference); how much the policy draws on that part")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--plot", type=Path, help="draw the skill per group and modality here")
     args = ap.parse_args(argv)
@@ -214,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, pt in enumerate(args.checkpoints, 1):
         print(f"[{k}/{len(args.checkpoints)}] {pt}", file=sys.stderr, flush=True)
         try:
-            results.append(measure(args.dataset, pt, by, args.held_out_from))
+            results.append(measure(args.dataset, pt, by, args.held_out_from, args.ablate))
         except (CheckpointError, ValueError, OSError) as exc:
             print(f"loss_by_condition: {pt}: {exc}", file=sys.stderr)
             return 2
@@ -227,6 +280,7 @@ def main(argv: list[str] | None = None) -> int:
         args.json.write_text(json.dumps({"dataset": str(args.dataset), "by": by,
                                          "held_out_from": None if args.held_out_from is None
                                          else str(args.held_out_from),
+                                         "ablated": args.ablate,
                                          "results": results,
                                          "modality_skill": modality_skill(results)},
                                         indent=1) + "\n")
@@ -234,7 +288,8 @@ def main(argv: list[str] | None = None) -> int:
         args.plot.parent.mkdir(parents=True, exist_ok=True)
         plot(results, args.plot, f"{args.dataset.name}: offline skill by {'/'.join(by)} ("
                                  f"{'validation' if args.held_out_from is None else 'every'} "
-                                 f"episode{'s' * (args.held_out_from is None)})")
+                                 f"episode{'s' * (args.held_out_from is None)}"
+                                 f"{f'; {args.ablate} mean-ablated' if args.ablate else ''})")
     return 0
 
 
