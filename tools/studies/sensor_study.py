@@ -40,7 +40,8 @@ ADDRESS, or a local Ray): the same episodes and results either way.
 
 Output under --out (default studies/sensors, which the repository tracks) and the datasets
 under datasets/ (which it does not: they are gigabytes, and the driver records them again
-from the plan's commands; $SEBVS_STUDY_DATASETS puts them elsewhere). Every run of a step appends a line to OUT/steps.jsonl (its
+from the plan's commands; $SEBVS_STUDY_DATASETS puts them elsewhere). Every run of a step
+appends a line to OUT/steps.jsonl (its
 label, start, seconds, exit code, CPU and GL stack; `status` times the steps from it);
 with --commit, each step that finishes is committed at once, its outputs and that line,
 so that a study spread over sessions survives a new checkout: what it needs again is

@@ -48,9 +48,9 @@ def episodes_named(data: Path, task: str, names: list[str], what: str) -> list[d
 
 
 def validation_of(pt: Path, data: Path):
-    """(model, its config, the dataset's entries of the checkpoint's validation episodes),
-    from the checkpoint's JSON record; ValueError when the record or the dataset lacks
-    them."""
+    """(model, its config, its input normalisation, the dataset's entries of the
+    checkpoint's validation episodes), from the checkpoint's JSON record; ValueError when
+    the record or the dataset lacks them."""
     from sebvs.policy.checkpoint import load_checkpoint
     model, cfg, norm = load_checkpoint(pt)
     record, training = cfg.get("dataset", {}), cfg.get("training", {})
