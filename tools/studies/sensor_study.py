@@ -202,8 +202,8 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
         metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
         read = out / "read" / f"{task}{rate}"
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
-            [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs, *READ_RULE, *metric,
-             "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
+            [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs,
+             *READ_RULE, *metric, "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
             read.with_suffix(".json")))
     return steps
 
