@@ -41,8 +41,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tools.studies.val_loss import (criterion_of, episodes_named, frames_of,  # noqa: E402
-                                    mean_loss, validation_of)
+from tools.studies.val_loss import (criterion_of, episodes_named, first_few,  # noqa: E402
+                                    frames_of, mean_loss, validation_of)
 
 
 def group_of(episode: dict, by: list[str]) -> str:
@@ -111,8 +111,7 @@ class MeanAblated:
         return len(self.frames)
 
     def __getitem__(self, i: int):
-        x, y = self.frames[i]
-        x = x.copy()
+        x, y = self.frames[i]          # x is built afresh per item (model_input)
         x[self.channels] = self.level[:, None, None]
         return x, y
 
@@ -132,8 +131,7 @@ def held_out(pt: Path, data: Path, train_data: Path):
     shared = [e["file"] for e in episodes if e.get("seed") in seen]
     if shared:
         raise ValueError(f"{data}: {len(shared)} episodes have the seed of one in {train_data} "
-                         f"({', '.join(shared[:3])}{', ...' if len(shared) > 3 else ''}): "
-                         f"not held out")
+                         f"({first_few(shared)}): not held out")
     return model, cfg, norm, episodes
 
 

@@ -136,24 +136,30 @@ def tables_metric(task: str, tables: dict[int, dict | None]) -> str:
     return READ_METRIC[task] or TASK_METRICS[task][0][0]
 
 
+def evaluations(out: Path, task: str, rate: int):
+    """Each planned evaluation of the task and rate that has results: its episodes (one
+    list per training seed and evaluation group, in the plan's order)."""
+    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
+        for group, _, _ in EVAL_GROUPS[task]:
+            path = eval_dir(out, task, rate, seed, group) / "results.json"
+            if path.exists():
+                yield read_results(path)["episodes"]
+
+
 def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[str, float]]:
     """{row: {condition/scenario: mean metric}} over every evaluation found for the task
     and rate; a modality trained with several seeds is averaged over them (each seed's
     cell mean first)."""
     per_seed: dict[str, dict[str, list[float]]] = {}
-    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
-        for group, _, _ in EVAL_GROUPS[task]:
-            path = eval_dir(out, task, rate, seed, group) / "results.json"
-            if not path.exists():
-                continue
-            cells: dict[tuple[str, str], list[float]] = {}
-            for e in read_results(path)["episodes"]:
-                v = e["metrics"].get(metric)
-                if v is not None:
-                    cells.setdefault((e["modality"], f"{e['condition']}/{e['scenario']}"),
-                                     []).append(float(v))
-            for (row, cell), xs in cells.items():
-                per_seed.setdefault(row, {}).setdefault(cell, []).append(statistics.fmean(xs))
+    for episodes in evaluations(out, task, rate):
+        cells: dict[tuple[str, str], list[float]] = {}
+        for e in episodes:
+            v = e["metrics"].get(metric)
+            if v is not None:
+                cells.setdefault((e["modality"], f"{e['condition']}/{e['scenario']}"),
+                                 []).append(float(v))
+        for (row, cell), xs in cells.items():
+            per_seed.setdefault(row, {}).setdefault(cell, []).append(statistics.fmean(xs))
     return {row: {cell: statistics.fmean(ms) for cell, ms in cells.items()}
             for row, cells in per_seed.items()}
 
@@ -171,16 +177,10 @@ def alike_cells(out: Path, task: str, rate: int) -> dict[str, list[list[str]]]:
     still: both play the same episodes wherever the target moves the same way. The report
     says where, so that a figure repeated across cells reads as what it is."""
     episodes: dict[tuple[str, str], list[tuple[int, str]]] = {}
-    for seed in sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss}):
-        for group, _, _ in EVAL_GROUPS[task]:
-            path = eval_dir(out, task, rate, seed, group) / "results.json"
-            if not path.exists():
-                continue
-            for e in read_results(path)["episodes"]:
-                if e["modality"] in REFERENCE_ROWS:
-                    episodes.setdefault((e["modality"], f"{e['condition']}/{e['scenario']}"),
-                                        []).append((e["seed"], json.dumps(e["metrics"],
-                                                                         sort_keys=True)))
+    for e in (e for found in evaluations(out, task, rate) for e in found):
+        if e["modality"] in REFERENCE_ROWS:
+            episodes.setdefault((e["modality"], f"{e['condition']}/{e['scenario']}"),
+                                []).append((e["seed"], json.dumps(e["metrics"], sort_keys=True)))
     groups: dict[str, dict[tuple, list[str]]] = {}
     for (row, cell), played in episodes.items():
         groups.setdefault(row, {}).setdefault(tuple(sorted(played)), []).append(cell)

@@ -35,6 +35,11 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 
+def first_few(names: list[str], n: int = 3) -> str:
+    """The first ``n`` names, comma-separated, and ", ..." when there are more."""
+    return ", ".join(names[:n]) + (", ..." if len(names) > n else "")
+
+
 def episodes_named(data: Path, task: str, names: list[str], what: str) -> list[dict]:
     """The dataset's index entries of these episode files, in the index's order (the order
     training used: its split keeps it); ValueError naming what is missing."""
@@ -43,7 +48,7 @@ def episodes_named(data: Path, task: str, names: list[str], what: str) -> list[d
     missing = sorted(set(names) - {e["file"] for e in episodes})
     if missing:
         raise ValueError(f"{data}: lacks {len(missing)} of the checkpoint's {what} episodes "
-                         f"({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''})")
+                         f"({first_few(missing)})")
     return episodes
 
 
