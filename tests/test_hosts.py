@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from sebvs.runtime.clocksync import estimate_offset
-from sebvs.runtime.supervisor import Supervisor, _host_ports, free_port_block
+from sebvs.runtime.ports import TcpPorts
+from sebvs.runtime.supervisor import Supervisor, _host_ports
 from sebvs.runtime.topology import TopologyError, load_topology
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -153,8 +154,9 @@ def sebvs(args, env_extra, **kw):
 
 
 def ports_overrides():
-    return ["--set", f"hosts.a.port={free_port_block(8)}",
-            "--set", f"hosts.b.port={free_port_block(8)}",
+    ports = TcpPorts()                      # one picker: the two blocks cannot overlap
+    return ["--set", f"hosts.a.port={ports.block(8)}",
+            "--set", f"hosts.b.port={ports.block(8)}",
             "--set", "source.width=160", "--set", "source.height=160"]   # 75 KiB: the ring
 
 

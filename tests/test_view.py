@@ -261,7 +261,7 @@ def test_live_nav_run_is_written_and_matches_what_the_run_recorded(tmp_path, cap
 # ---------------------------------------------------------------- --serve
 def test_serve_hosts_the_web_viewer_on_loopback_and_stops_it(tmp_path):
     pytest.importorskip("rerun")
-    from sebvs.runtime.supervisor import free_port_block
+    from sebvs.runtime.ports import free_port_block
     ep = tmp_path / "ep.h5"
     write_episode(ep)
     port = free_port_block(2)

@@ -26,7 +26,6 @@ import os
 import secrets
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,6 +41,7 @@ import zmq
 from . import curve
 from .clocksync import measure_offset
 from .params import clip, short_repr
+from .ports import TcpPorts
 from .shm import ShmFull, check_budget, remove_run_rings, ring_bytes
 from .stalls import STALL_PERIOD_S, StallWatch, format_losses, losses, query_all
 from .topology import (Topology, TopologyError, check_cpus_available, load_topology,
@@ -83,33 +83,6 @@ def run_directory(root: Path, name: str, suffix: str) -> Path:
 
 def socket_root() -> Path:
     return Path(tempfile.gettempdir())
-
-
-def _free_tcp_port(host: str) -> int:
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
-
-
-def free_port_block(n: int, host: str = "127.0.0.1", tries: int = 100) -> int:
-    """The first of ``n`` consecutive tcp ports free on ``host`` just now: a `[hosts]`
-    table's `port` for tests and benchmarks that run several hosts on one machine."""
-    for _ in range(tries):
-        base = _free_tcp_port(host)
-        if base + n > 65536:
-            continue
-        socks = []
-        try:
-            for port in range(base, base + n):
-                socks.append(socket.socket())
-                socks[-1].bind((host, port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for sock in socks:
-                sock.close()
-    raise RuntimeError(f"no {n} consecutive free tcp ports on {host} in {tries} tries")
 
 
 def log_tail(path: Path, n: int = LOG_TAIL_LINES) -> str:
@@ -178,6 +151,10 @@ class Supervisor:
         self.sockdir = socket_root() / f"sebvs-{self.run_id}"
         self.log_level = log_level
         self.ctx = zmq.Context()
+        # the supervisor only asks: a request no actor took is dropped at close, never
+        # waited for (a context collected with one pending would block its collector)
+        self.ctx.setsockopt(zmq.LINGER, 0)
+        self.ports = TcpPorts(topo.host)        # a tcp run's endpoints, none twice
         self.procs: dict[str, _Proc] = {}       # by process name
         # other hosts' actors (the primary's alone lists them): their control endpoints
         self.remote: dict[str, str] = {}
@@ -192,7 +169,7 @@ class Supervisor:
     # ------------------------------------------------------------------ planning
     def _endpoint(self, stem: str) -> str:
         if self.topo.transport == "tcp":
-            return f"tcp://{self.topo.host}:{_free_tcp_port(self.topo.host)}"
+            return f"tcp://{self.topo.host}:{self.ports.one()}"
         return f"ipc://{self.sockdir}/{stem}"
 
     def _is_local(self, actor: str) -> bool:
@@ -325,6 +302,19 @@ class Supervisor:
             raise RunFailed(exc.strerror) from None
 
     def start(self) -> None:
+        """Spawn the actors, wait until each is ready, start the clock. A start that
+        fails stops what it had started before it raises: a caller without a `stop()` in
+        a `finally` leaks no actor, socket directory or zmq context."""
+        try:
+            self._start()
+        except BaseException as exc:
+            try:
+                self.stop()
+            except Exception as also:   # the start's error is the one to see
+                exc.add_note(f"stopping what had started failed too: {also!r}")
+            raise
+
+    def _start(self) -> None:
         (self.rundir / "logs").mkdir(parents=True, exist_ok=True)
         self.sockdir.mkdir(mode=0o700, parents=True)
         (self.sockdir / "rundir").write_text(str(self.rundir))

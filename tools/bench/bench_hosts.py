@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from sebvs.runtime.supervisor import free_port_block  # noqa: E402
+from sebvs.runtime.ports import TcpPorts  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
 SKEW_NS = 50_000_000
@@ -70,7 +70,8 @@ def run_placement(kind: str, seconds: float, tmp: Path) -> dict:
         clock = None
     else:
         cpu_s = None
-        ports = ["--set", f"hosts.a.port={free_port_block(8)}", "--set", f"hosts.b.port={free_port_block(8)}"]
+        picker = TcpPorts()     # one picker: the two hosts' blocks cannot overlap
+        ports = ["--set", f"hosts.a.port={picker.block(8)}", "--set", f"hosts.b.port={picker.block(8)}"]
         skew = {"SEBVS_CLOCK_SKEW_NS": str(SKEW_NS)} if kind == "skewed" else {}
         b = sebvs(["run", "topologies/synthetic_hosts.toml", "--host", "b", *ports, *FRAMES,
                    *runs], dict(token, **skew))

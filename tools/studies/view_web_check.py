@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from sebvs.runtime.supervisor import free_port_block  # noqa: E402
+from sebvs.runtime.ports import free_port_block  # noqa: E402
 
 CHROMIUM = ("/usr/lib/chromium/chromium", "chromium", "chromium-browser", "google-chrome")
 # a headless browser on a box without network. WebGL2 comes from SwiftShader: Chromium
