@@ -91,3 +91,20 @@ def test_a_failed_start_stops_what_it_had_started(tmp_path):
     assert not sup.sockdir.exists()
     assert all(p.popen.poll() is not None for p in sup.procs.values() if p.popen)
     assert sup.stop() == 1                 # a caller's stop() after it is harmless
+
+
+def test_a_start_refused_before_any_actor_says_why_in_run_json(tmp_path, monkeypatch):
+    import json
+
+    from sebvs.runtime.supervisor import RunFailed, Supervisor
+    from sebvs.runtime.topology import load_topology
+    from tests.test_runtime_hardening import source_sink_topology
+
+    monkeypatch.setenv("SEBVS_CURVE", "sometimes")
+    topo = source_sink_topology(tmp_path, "refused", topology='transport = "tcp"')
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    with pytest.raises(RunFailed, match="SEBVS_CURVE"):
+        sup.start()
+    info = json.loads((sup.rundir / "run.json").read_text())
+    assert info["status"] == "ended" and "SEBVS_CURVE" in info["failure"]
+    assert sup.ctx.closed and not sup.sockdir.exists()

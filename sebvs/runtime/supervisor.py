@@ -308,6 +308,8 @@ class Supervisor:
         try:
             self._start()
         except BaseException as exc:
+            # run.json says why (an actor's death report is already there)
+            self.failure = self.failure or f"start failed: {exc!r}"
             try:
                 self.stop()
             except Exception as also:   # the start's error is the one to see
