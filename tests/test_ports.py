@@ -65,9 +65,9 @@ def test_no_room_below_the_ephemeral_range_falls_back_to_the_kernels_pick(monkey
 
 
 def test_a_failed_start_stops_what_it_had_started(tmp_path):
-    """The source's telemetry port is taken between the supervisor's probe and the
-    source's bind: start() raises, and the sink it had spawned, the socket directory and
-    the zmq context are gone without a stop() from the caller."""
+    """The second port handed out (the source's second output) is taken between the
+    supervisor's probe and the source's bind: start() raises, and the sink it had spawned,
+    the socket directory and the zmq context are gone without a stop() from the caller."""
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
     from tests.test_runtime_hardening import source_sink_topology
