@@ -43,7 +43,7 @@ def test_a_port_already_given_or_bound_is_passed_over():
         held.listen()
         busy = held.getsockname()[1]
         other = next(p for p in range(LOWEST + 7, LOWEST + 500)
-                     if p not in (first, busy) and ports._bindable("127.0.0.1", range(p, p + 1)))
+                     if p not in (first, busy) and ports.bindable("127.0.0.1", range(p, p + 1)))
         picker._random = Draws(first, busy, other)
         assert picker.one() == other
 

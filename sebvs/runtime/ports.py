@@ -37,7 +37,8 @@ def ephemeral_start(path: Path = EPHEMERAL_RANGE_FILE) -> int:
         return IANA_EPHEMERAL_START
 
 
-def _bindable(host: str, ports: range) -> bool:
+def bindable(host: str, ports: range) -> bool:
+    """Whether every port of ``ports`` can be bound on ``host`` just now."""
     socks = []
     try:
         for port in ports:
@@ -60,6 +61,7 @@ class TcpPorts:
         self.tries = tries
         self.given: set[int] = set()
         self._random = random.SystemRandom()
+        self._top = ephemeral_start()       # read once: a run asks for a port per endpoint
 
     def one(self) -> int:
         return self.block(1)
@@ -67,14 +69,14 @@ class TcpPorts:
     def block(self, n: int) -> int:
         """The first of ``n`` consecutive ports: a `[hosts]` table's `port` for tests and
         benchmarks that run several hosts on one machine."""
-        top = ephemeral_start()
+        top = self._top
         for _ in range(self.tries):
             base = (self._random.randrange(LOWEST, top - n + 1) if top - n >= LOWEST
                     else self._kernel_pick())
             ports = range(base, base + n)
             if base + n > 65536 or self.given.intersection(ports):
                 continue
-            if _bindable(self.host, ports):
+            if bindable(self.host, ports):
                 self.given.update(ports)
                 return base
         raise RuntimeError(f"no {n} consecutive free tcp ports on {self.host} in "

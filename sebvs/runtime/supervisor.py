@@ -152,7 +152,8 @@ class Supervisor:
         self.log_level = log_level
         self.ctx = zmq.Context()
         # the supervisor only asks: a request no actor took is dropped at close, never
-        # waited for (a context collected with one pending would block its collector)
+        # waited for (a context collected with one pending would block its collector);
+        # the default of every socket made here
         self.ctx.setsockopt(zmq.LINGER, 0)
         self.ports = TcpPorts(topo.host)        # a tcp run's endpoints, none twice
         self.procs: dict[str, _Proc] = {}       # by process name
@@ -328,7 +329,6 @@ class Supervisor:
         self.specs = specs
         self._check_ring_budget(specs)
         self.pull = self.ctx.socket(zmq.PULL)
-        self.pull.setsockopt(zmq.LINGER, 0)
         self.pull.bind(self.supervisor_endpoint)
         self.info = {
             "name": self.topo.name, "run_id": self.run_id, "topology": str(self.topo.path),
@@ -673,7 +673,6 @@ class Supervisor:
         for p in live:  # ask all at once, then wait for all
             for member in p.members:
                 s = self.ctx.socket(zmq.DEALER)
-                s.setsockopt(zmq.LINGER, 0)
                 curve.client(s, self.specs[member]["control"], self.token)
                 s.connect(self.specs[member]["control"])
                 s.send(msgpack.packb({"cmd": "stop", "token": self.token}))

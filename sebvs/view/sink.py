@@ -65,15 +65,6 @@ def spawn_native(rec) -> None:
             from None
 
 
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        try:
-            s.bind((LOOPBACK, port))
-        except OSError:
-            return False
-    return True
-
-
 def _accepts(port: int) -> bool:
     with socket.socket() as s:
         s.settimeout(0.5)
@@ -98,8 +89,9 @@ class WebViewer:
         return f"http://{LOOPBACK}:{self.web_port}/?url={quote(self.grpc_url, safe='')}"
 
     def start(self) -> "WebViewer":
+        from sebvs.runtime.ports import bindable
         for flag, port in (("--grpc-port", self.grpc_port), ("--web-port", self.web_port)):
-            if not _port_free(port):
+            if not bindable(LOOPBACK, range(port, port + 1)):
                 raise ViewerError(f"port {port} on {LOOPBACK} is in use: choose another "
                                   f"with {flag}")
         self.log = tempfile.TemporaryFile()
