@@ -58,3 +58,22 @@ class StuckSink(Actor):
 
     async def on_frames(self, msg) -> None:
         await asyncio.Event().wait()
+
+
+class SlowSetupSink(Actor):
+    """Writes ``marker`` as its setup begins, then takes ``setup_s`` to get ready."""
+    inputs = ("frames",)
+
+    @dataclass
+    class Params:
+        marker: str = ""
+        setup_s: float = 2.0
+
+    async def setup(self) -> None:
+        if self.params.marker:
+            with open(self.params.marker, "w") as f:
+                f.write("setup begun\n")
+        await asyncio.sleep(self.params.setup_s)
+
+    async def on_frames(self, msg) -> None:
+        pass

@@ -187,24 +187,19 @@ class Node:
         self._bind_sockets()
         control_task = asyncio.create_task(self._serve_control())
         self.tasks.append(control_task)
-        await self.actor.setup()
-        await self.outputs.await_subscribers(ready_timeout_s)
-        self._watch_subscriptions()
-        if supervisor_endpoint:
-            push = self.ctx.socket(zmq.PUSH)
-            push.setsockopt(zmq.LINGER, 1000)
-            push.connect(supervisor_endpoint)
-            await push.send(msgpack.packb({"event": "ready", "actor": self.name,
-                                           "pid": os.getpid()}))
-            push.close()
-            self.ready = True
-        else:
-            self.started.set()
-        start_wait = asyncio.create_task(self.started.wait())
-        stop_wait = asyncio.create_task(self.actor.stopping.wait())
-        await asyncio.wait([start_wait, stop_wait], return_when=asyncio.FIRST_COMPLETED)
-        start_wait.cancel()
-        stop_wait.cancel()
+        # A signal or a stop request sets `stopping` at any time, so each step of the start
+        # gives way to it: an actor whose supervisor died mid-start (the kernel's
+        # parent-death SIGTERM) would otherwise wait for ever on a ready message nobody takes.
+        set_up = await self._unless_stopping(self.actor.setup())
+        if set_up and await self._unless_stopping(
+                self.outputs.await_subscribers(ready_timeout_s)):
+            self._watch_subscriptions()
+            if supervisor_endpoint:
+                await self._unless_stopping(self._say_ready(supervisor_endpoint,
+                                                            ready_timeout_s))
+            else:
+                self.started.set()
+        await self._unless_stopping(self.started.wait())
         if not self.actor.stopping.is_set():
             self.inputs.start()
             self.tasks.append(asyncio.create_task(self._publish_telemetry()))
@@ -212,7 +207,41 @@ class Node:
             if runner is not None:
                 self.tasks.append(asyncio.create_task(self._run_source(runner)))
             await self.actor.stopping.wait()
-        return await self._shutdown()
+        return await self._shutdown(set_up)
+
+    async def _unless_stopping(self, step) -> bool:
+        """Await the coroutine ``step`` unless the actor is told to stop first; then cancel
+        it. True when ``step`` finished (its exceptions propagate)."""
+        task = asyncio.ensure_future(step)
+        stop = asyncio.create_task(self.actor.stopping.wait())
+        try:
+            await asyncio.wait([task, stop], return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop.cancel()
+            if not task.done():
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
+        if task.cancelled():
+            return False
+        task.result()
+        return True
+
+    async def _say_ready(self, endpoint: str, timeout_s: float) -> None:
+        push = self.ctx.socket(zmq.PUSH)
+        push.setsockopt(zmq.LINGER, 1000)
+        push.connect(endpoint)
+        try:
+            # a supervisor that does not take it (gone, or not listening) ends the actor
+            await asyncio.wait_for(push.send(msgpack.packb(
+                {"event": "ready", "actor": self.name, "pid": os.getpid()})), timeout_s)
+        except asyncio.TimeoutError:
+            push.close(linger=0)
+            self.exit_code = 1
+            self.finish(f"the supervisor at {endpoint} did not take the ready message "
+                        f"in {timeout_s:.0f} s")
+            return
+        push.close()
+        self.ready = True
 
     async def _run_source(self, runner) -> None:
         try:
@@ -226,7 +255,7 @@ class Node:
             return
         self.event("source_done", {})
 
-    async def _shutdown(self) -> int:
+    async def _shutdown(self, set_up: bool = True) -> int:
         self.inputs.stop_reading()
         self.outputs.stop_watching()
         asyncio.get_running_loop().remove_reader(self.telemetry_socket.FD)
@@ -235,10 +264,11 @@ class Node:
             if task is not self.tasks[0]:  # control stays up to answer the stop request
                 task.cancel()
         await asyncio.gather(*self.tasks[1:], return_exceptions=True)
-        try:
-            await asyncio.wait_for(self.actor.teardown(), 5)
-        except Exception:
-            log.exception("teardown of actor %r failed", self.name)
+        if set_up:  # a setup cut short by a stop cleans up after itself (CancelledError)
+            try:
+                await asyncio.wait_for(self.actor.teardown(), 5)
+            except Exception:
+                log.exception("teardown of actor %r failed", self.name)
         self._flush_telemetry()
         await asyncio.sleep(0.01)  # let the reply to `stop` leave
         self.tasks[0].cancel()
