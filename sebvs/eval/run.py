@@ -22,8 +22,9 @@ results.json for any worker count.
 
 Videos (`video`): the overrides add a video writer (actors/video.py) to the run, writing
 <out>/videos/<condition>[__<scenario>]__<modality>__ep<k>.mp4 for the first `video_episodes`
-episodes, with the event frames wired to it for the modalities that use them. Without
-`video` no such actor starts.
+episodes, with the event frames wired to it for the modalities that use them, and the sim
+lingers past the writer's wait for an episode's trailing frames. Without `video` no such
+actor starts and nothing else changes.
 """
 from __future__ import annotations
 
@@ -146,6 +147,7 @@ TASKS = {
 # the learned rows: the paper's three, and the rgb+diff control when asked for by name
 MODALITIES = PAPER_MODALITIES + CONTROL_MODALITIES
 BASELINE = "no_action"
+VIDEO_DRAIN_MARGIN_S = 0.5     # the sim's linger beyond the video writer's finalize wait
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
 
@@ -307,6 +309,11 @@ class EvalPlan:
             sets.append(f"video.fps={float(hz)}")
         if "events" in MODALITY_INPUTS.get(run.modality, ()):
             sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
+        # The run stops when the sim's linger ends, dropping what is still queued on the
+        # writer's inputs; the writer waits FINALIZE_AFTER_S for an episode's trailing
+        # frames, so the sim lingers longer than that (a --set sim.linger_s still wins)
+        from actors.video import FINALIZE_AFTER_S
+        sets.append(f"sim.linger_s={FINALIZE_AFTER_S + VIDEO_DRAIN_MARGIN_S}")
         return sets
 
     def rate_overrides(self, run: Run) -> list[str]:
