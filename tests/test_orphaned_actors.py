@@ -1,6 +1,7 @@
-"""An actor whose supervisor dies ends itself: the kernel's parent-death SIGTERM must end
-it whatever it is awaiting (its setup, its consumers' subscriptions, the ready message to a
-supervisor that is gone), not only once it runs."""
+"""An actor whose supervisor dies ends itself: the kernel's parent-death SIGTERM (or any
+stop) ends it at once whatever step of its start it is in (its setup, waiting for its
+consumers' subscriptions), not once that step is done."""
+import asyncio
 import json
 import os
 import signal
@@ -65,3 +66,49 @@ def test_actors_end_when_their_supervisor_dies_during_their_start(tmp_path):
         for p in pids:
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
+
+
+# ----------------------------------------------------------------- one Node, in process
+class _Starting:
+    """An actor whose setup takes `setup_s` (None: for ever); it notes its teardown."""
+
+    def __init__(self, setup_s):
+        from sebvs.runtime import Actor
+
+        outer = self
+
+        class Probe(Actor):
+            async def setup(self):
+                if setup_s is None:
+                    await asyncio.Event().wait()
+                await asyncio.sleep(setup_s)
+
+            async def teardown(self):
+                outer.torn_down = True
+
+        self.cls, self.torn_down = Probe, False
+
+    def __call__(self, node):
+        return self.cls("probe", None, node=node)
+
+
+def _node(tmp_path, actor):
+    from sebvs.runtime.node import Node
+    spec = {"name": "probe", "run_id": f"orphan{os.getpid()}", "outputs": {}, "inputs": {},
+            "control": f"ipc://{tmp_path}/probe.ctl", "telemetry": f"ipc://{tmp_path}/probe.tel"}
+    return Node(spec, actor)
+
+
+def test_a_stop_during_setup_ends_the_start_and_skips_teardown(tmp_path):
+    actor = _Starting(setup_s=None)
+
+    async def go():
+        node = _node(tmp_path, actor)
+        asyncio.get_running_loop().call_later(0.2, node.finish, "signal SIGTERM")
+        t0 = time.monotonic()
+        code = await asyncio.wait_for(node.run(f"ipc://{tmp_path}/nobody"), 10)
+        return node, code, time.monotonic() - t0
+
+    node, code, took = asyncio.run(go())
+    assert code == 0 and node.finished_reason == "signal SIGTERM" and took < 5
+    assert not actor.torn_down and not node.ready

@@ -187,16 +187,15 @@ class Node:
         self._bind_sockets()
         control_task = asyncio.create_task(self._serve_control())
         self.tasks.append(control_task)
-        # A signal or a stop request sets `stopping` at any time, so each step of the start
-        # gives way to it: an actor whose supervisor died mid-start (the kernel's
-        # parent-death SIGTERM) would otherwise wait for ever on a ready message nobody takes.
+        # A signal or a stop request sets `stopping` at any time, so the start's long steps
+        # give way to it: an actor whose supervisor died mid-start (the kernel's parent-death
+        # SIGTERM) ends now, not once its setup and its consumers' subscriptions are done.
         set_up = await self._unless_stopping(self.actor.setup())
         if set_up and await self._unless_stopping(
                 self.outputs.await_subscribers(ready_timeout_s)):
             self._watch_subscriptions()
             if supervisor_endpoint:
-                await self._unless_stopping(self._say_ready(supervisor_endpoint,
-                                                            ready_timeout_s))
+                await self._say_ready(supervisor_endpoint)
             else:
                 self.started.set()
         await self._unless_stopping(self.started.wait())
@@ -226,20 +225,13 @@ class Node:
         task.result()
         return True
 
-    async def _say_ready(self, endpoint: str, timeout_s: float) -> None:
+    async def _say_ready(self, endpoint: str) -> None:
         push = self.ctx.socket(zmq.PUSH)
         push.setsockopt(zmq.LINGER, 1000)
         push.connect(endpoint)
-        try:
-            # a supervisor that does not take it (gone, or not listening) ends the actor
-            await asyncio.wait_for(push.send(msgpack.packb(
-                {"event": "ready", "actor": self.name, "pid": os.getpid()})), timeout_s)
-        except asyncio.TimeoutError:
-            push.close(linger=0)
-            self.exit_code = 1
-            self.finish(f"the supervisor at {endpoint} did not take the ready message "
-                        f"in {timeout_s:.0f} s")
-            return
+        # queued at once (ZMQ_IMMEDIATE is off), even for a supervisor that is gone
+        await push.send(msgpack.packb({"event": "ready", "actor": self.name,
+                                       "pid": os.getpid()}))
         push.close()
         self.ready = True
 
