@@ -283,9 +283,10 @@ def test_a_demo_swap_to_the_frame_difference_loads_its_checkpoint():
 def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_path):
     from sebvs.eval.run import EvalPlan, Run
     from sebvs.runtime.topology import load_topology, parse_override
+    # checkpoints that name no event window (none at all here): the window is one tick
     plan = EvalPlan(task="nav", modalities=["rgb+event"], conditions=["nominal", "flicker_100"],
-                    episodes=1, out=tmp_path, control_hz=30.0)
-    plan.validate()
+                    episodes=1, out=tmp_path, control_hz=30.0,
+                    checkpoints=str(tmp_path / "no-checkpoints"))
     for cond, render, physics in (("nominal", 120.0, 1080.0), ("flicker_100", 1020.0, 1020.0)):
         for modality in ("rgb+event", "expert"):
             path, sets = plan.overrides(Run(cond, "indoor", modality))

@@ -118,3 +118,24 @@ def test_eval_sets_the_accumulator_from_the_checkpoint(tmp_path):
     notes = plan.event_frame_notes()
     assert len(notes) == 1 and str(ck / "nav-event.json") in notes[0]
     assert "camera.luma_scale=0.5" in notes[0]
+
+
+def test_a_control_rate_keeps_the_window_the_checkpoint_learned_from(tmp_path):
+    """--control-hz sets one tick's window only where the checkpoint names none: a policy
+    trained on 0.1 s frames (widen_event_window.py's, or a 10 Hz recording) evaluated at
+    30 Hz still gets 0.1 s frames, not silently a third of its events."""
+    from sebvs.runtime.topology import load_topology
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    plan = EvalPlan(task="nav", modalities=["event"], conditions=["nominal"], episodes=1,
+                    out=tmp_path / "out", checkpoints=str(ck), control_hz=30.0)
+    for frames, window in (({"representation": "counts", "bins": 1, "window_s": 0.1,
+                             "sensor": [160, 160], "output": [160, 160]}, 0.1),
+                           (None, 1 / 30)):
+        cfg = {"task": "nav", "modality": "event"}
+        if frames:
+            cfg["event_frames"] = frames
+        (ck / "nav-event.json").write_text(json.dumps(cfg))
+        topo = load_topology(*plan.overrides(Run("nominal", "indoor", "event")))
+        assert topo.actors["accumulator"].params["window_s"] == pytest.approx(window)
+        assert topo.actors["sim"].params["control_hz"] == 30.0

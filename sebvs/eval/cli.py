@@ -150,7 +150,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --video: the first K episodes of each run (default 1)")
     e.add_argument("--control-hz", type=float, default=None, metavar="HZ",
                    help="the control rate (default: the topologies', 10 Hz as the paper): "
-                        "sim and tracker ticks, the event frames' window (one tick) and a "
+                        "sim and tracker ticks, the event frames' window (one tick, unless "
+                        "the checkpoint names the one it learned from) and a "
                         "render rate that is a whole multiple of it; the physical frame "
                         "camera runs at it too, capped at its sensor's top rate")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",

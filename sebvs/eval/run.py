@@ -318,7 +318,7 @@ class EvalPlan:
 
     def rate_overrides(self, run: Run) -> list[str]:
         """The control rate as a variable: the sim's ticks, the tracker's, the event
-        frames' window (one tick), a render rate that is a whole multiple of the control
+        frames' window (one tick, where the checkpoint does not name one), a render rate that is a whole multiple of the control
         rate (at least the one the topology or the condition asks for) and a physics rate
         that is a whole multiple of that (at least the topology's)."""
         if self.control_hz is None:
@@ -339,7 +339,10 @@ class EvalPlan:
                 f"tracker.control_hz={hz}",
                 f"sim.timestep={1.0 / physics}" if sim.get("timestep")
                 else f"sim.physics_hz={physics}"]
-        if "events" in MODALITY_INPUTS.get(run.modality, ()):
+        # one tick, unless the checkpoint says which window it learned from: the policy
+        # then sees the frames it was trained on (event_frame_overrides set that window)
+        if "events" in MODALITY_INPUTS.get(run.modality, ()) and not isinstance(
+                (self.event_frames(run.modality) or {}).get("window_s"), (int, float)):
             sets.append(f"accumulator.window_s={1.0 / hz}")
         return sets
 

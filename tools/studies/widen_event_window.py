@@ -24,9 +24,9 @@ source file, its sha256 and K. The destination gets its own index.json (with fre
 sha256s) and can be trained on and checked like a recording. An interrupted run resumes:
 episodes already in the destination's index are kept.
 
-A model trained on it is evaluated closed-loop with the accumulator set to the same
-window: ``sebvs eval ... --set accumulator.window_s=<K / control rate>`` (the control-rate
-overrides set one control period otherwise).
+A model trained on it keeps the widened window in its checkpoint, and ``sebvs eval
+--control-hz`` makes the accumulator's window that one at run time (one control period only
+for checkpoints that name none).
 """
 from __future__ import annotations
 
