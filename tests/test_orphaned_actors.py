@@ -69,46 +69,48 @@ def test_actors_end_when_their_supervisor_dies_during_their_start(tmp_path):
 
 
 # ----------------------------------------------------------------- one Node, in process
-class _Starting:
-    """An actor whose setup takes `setup_s` (None: for ever); it notes its teardown."""
-
-    def __init__(self, setup_s):
-        from sebvs.runtime import Actor
-
-        outer = self
-
-        class Probe(Actor):
-            async def setup(self):
-                if setup_s is None:
-                    await asyncio.Event().wait()
-                await asyncio.sleep(setup_s)
-
-            async def teardown(self):
-                outer.torn_down = True
-
-        self.cls, self.torn_down = Probe, False
-
-    def __call__(self, node):
-        return self.cls("probe", None, node=node)
-
-
-def _node(tmp_path, actor):
+def _probe_node(tmp_path, setup_s, outputs=None):
+    """A Node around an actor whose setup takes ``setup_s`` (None: for ever) and which
+    notes whether its teardown ran; ``outputs``: the spec's, as the supervisor plans them."""
+    from sebvs.runtime import Actor
     from sebvs.runtime.node import Node
-    spec = {"name": "probe", "run_id": f"orphan{os.getpid()}", "outputs": {}, "inputs": {},
-            "control": f"ipc://{tmp_path}/probe.ctl", "telemetry": f"ipc://{tmp_path}/probe.tel"}
-    return Node(spec, actor)
+
+    class Probe(Actor):
+        torn_down = False
+
+        async def setup(self):
+            await (asyncio.Event().wait() if setup_s is None else asyncio.sleep(setup_s))
+
+        async def teardown(self):
+            self.torn_down = True
+
+    spec = {"name": "probe", "run_id": f"orphan{os.getpid()}", "outputs": outputs or {},
+            "inputs": {}, "control": f"ipc://{tmp_path}/probe.ctl",
+            "telemetry": f"ipc://{tmp_path}/probe.tel"}
+    return Node(spec, lambda node: Probe("probe", None, node=node))
+
+
+def _stopped_after(node, tmp_path, delay_s: float):
+    async def go():
+        asyncio.get_running_loop().call_later(delay_s, node.finish, "signal SIGTERM")
+        t0 = time.monotonic()
+        code = await asyncio.wait_for(node.run(f"ipc://{tmp_path}/nobody"), 30)
+        return code, time.monotonic() - t0
+    return asyncio.run(go())
 
 
 def test_a_stop_during_setup_ends_the_start_and_skips_teardown(tmp_path):
-    actor = _Starting(setup_s=None)
-
-    async def go():
-        node = _node(tmp_path, actor)
-        asyncio.get_running_loop().call_later(0.2, node.finish, "signal SIGTERM")
-        t0 = time.monotonic()
-        code = await asyncio.wait_for(node.run(f"ipc://{tmp_path}/nobody"), 10)
-        return node, code, time.monotonic() - t0
-
-    node, code, took = asyncio.run(go())
+    node = _probe_node(tmp_path, setup_s=None)
+    code, took = _stopped_after(node, tmp_path, 0.2)
     assert code == 0 and node.finished_reason == "signal SIGTERM" and took < 5
-    assert not actor.torn_down and not node.ready
+    assert not node.actor.torn_down and not node.ready
+
+
+def test_a_stop_while_waiting_for_consumers_ends_the_start(tmp_path):
+    """One consumer expected, none ever comes: the wait would last its 60 s timeout."""
+    out = {"frames": {"endpoint": f"ipc://{tmp_path}/frames", "hwm": 8, "slots": 4,
+                      "subscribers": 1, "ring": f"sebvs-orphan{os.getpid()}-probe-frames"}}
+    node = _probe_node(tmp_path, setup_s=0, outputs=out)
+    code, took = _stopped_after(node, tmp_path, 0.5)
+    assert code == 0 and took < 5 and not node.ready
+    assert node.actor.torn_down            # its setup had finished: it is torn down

@@ -318,9 +318,10 @@ class EvalPlan:
 
     def rate_overrides(self, run: Run) -> list[str]:
         """The control rate as a variable: the sim's ticks, the tracker's, the event
-        frames' window (one tick, where the checkpoint does not name one), a render rate that is a whole multiple of the control
-        rate (at least the one the topology or the condition asks for) and a physics rate
-        that is a whole multiple of that (at least the topology's)."""
+        frames' window (one tick, where the checkpoint does not name one), a render rate
+        that is a whole multiple of the control rate (at least the one the topology or the
+        condition asks for) and a physics rate that is a whole multiple of that (at least
+        the topology's)."""
         if self.control_hz is None:
             return []
         hz = float(self.control_hz)
