@@ -1,6 +1,7 @@
 """tools/studies/sensor_study.py builds the plan's steps (docs/study_sensors_plan.md) and
 resumes where a stop left them."""
 import json
+import shutil
 
 import pytest
 
@@ -126,6 +127,9 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert means["rgb+event"]["hdr/indoor"] == pytest.approx(0.8)
         assert means["no_action"]["hdr/indoor"] == pytest.approx(0.05)
         assert "rgb+event" not in means or "flicker_100/indoor" not in means["rgb+event"]
+        assert data["tasks"]["nav"]["seeds_found"][10] == {
+            "rgb+event": 3, "rgb+diff": 3, "expert": 1, "no_action": 1}
+        assert "| rgb+diff (3 seeds) | rgb+event (3 seeds) |" in text
         assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md"),
                          "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
@@ -138,6 +142,10 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
             f"# Results\nprose\n{rep.BEGIN}\n{text.rstrip()}\n{rep.END}\nmore prose\n"
         page.write_text("# Results\nno markers\n")
         assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 2
+        # while a seed's evaluation is missing, the header says how many the figures hold
+        shutil.rmtree(study.eval_dir(tmp_path, "nav", 10, 2, "main").parent)
+        partial, _, _ = rep.report(tmp_path)
+        assert "| rgb+diff (2 of 3 seeds) | rgb+event (2 of 3 seeds) |" in partial
         assert page.read_text() == "# Results\nno markers\n"       # left alone
 
 

@@ -146,10 +146,12 @@ def evaluations(out: Path, task: str, rate: int):
                 yield read_results(path)["episodes"]
 
 
-def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[str, float]]:
+def row_means(out: Path, task: str, rate: int, metric: str
+              ) -> tuple[dict[str, dict[str, float]], dict[str, int]]:
     """{row: {condition/scenario: mean metric}} over every evaluation found for the task
     and rate; a modality trained with several seeds is averaged over them (each seed's
-    cell mean first)."""
+    cell mean first); and {row: the training seeds found for it}, which is fewer than the
+    plan's while its evaluations are under way."""
     per_seed: dict[str, dict[str, list[float]]] = {}
     for episodes in evaluations(out, task, rate):
         cells: dict[tuple[str, str], list[float]] = {}
@@ -160,8 +162,10 @@ def row_means(out: Path, task: str, rate: int, metric: str) -> dict[str, dict[st
                                  []).append(float(v))
         for (row, cell), xs in cells.items():
             per_seed.setdefault(row, {}).setdefault(cell, []).append(statistics.fmean(xs))
-    return {row: {cell: statistics.fmean(ms) for cell, ms in cells.items()}
-            for row, cells in per_seed.items()}
+    means = {row: {cell: statistics.fmean(ms) for cell, ms in cells.items()}
+             for row, cells in per_seed.items()}
+    return means, {row: max(len(ms) for ms in cells.values())
+                   for row, cells in per_seed.items()}
 
 
 REFERENCE_ROWS = ("expert", "no_action")
@@ -233,9 +237,21 @@ def machines_line(found: dict[str, dict[str, list[str]]]) -> str:
             f"evaluation{'s' * (len(found) != 1)}).")
 
 
-def rows_table(task: str, rate: int, means: dict[str, dict[str, float]]) -> list[str]:
-    seeds = {m: len(s) for m, s in PLAN_SEEDS[rate].items()}
-    head = [f"{r} ({seeds[r]} seed{'s' * (seeds[r] > 1)})" if r in seeds else r for r in ROWS]
+def rows_table(task: str, rate: int, means: dict[str, dict[str, float]],
+               found: dict[str, int] | None = None) -> list[str]:
+    """The descriptive table; a learned row's header says its seeds, and how many of the
+    plan's its figures hold while some are still to be evaluated (``found``)."""
+    planned = {m: len(s) for m, s in PLAN_SEEDS[rate].items()}
+    found = found or {}
+
+    def header(row: str) -> str:
+        if row not in planned:
+            return row
+        n = planned[row]
+        have = found.get(row, n) if row in means else n
+        seeds = f"{n} seed{'s' * (n > 1)}"
+        return f"{row} ({seeds})" if have >= n else f"{row} ({have} of {seeds})"
+    head = [header(r) for r in ROWS]
     lines = ["| cell | " + " | ".join(head) + " |", "|---|" + "---|" * len(ROWS)]
     for condition, scenario in PLAN_CELLS[task]:
         cell = f"{condition}/{scenario}"
@@ -263,11 +279,12 @@ def report(out: Path) -> tuple[str, dict, bool]:
         metric = tables_metric(task, tables)
         data["tasks"][task] = {"readings": tables, "rows": {}, "machines": {}}
         for rate in RATES:
-            means = row_means(out, task, rate, metric)
+            means, found = row_means(out, task, rate, metric)
             data["tasks"][task]["rows"][rate] = means
+            data["tasks"][task].setdefault("seeds_found", {})[rate] = found
             lines += [f"{task} at {rate} Hz, every row ({metric}, %, mean over the seeds "
                       f"each modality was trained with; test seed episodes):", "",
-                      *rows_table(task, rate, means), ""]
+                      *rows_table(task, rate, means, found), ""]
             alike = alike_cells(out, task, rate)
             data["tasks"][task].setdefault("alike", {})[rate] = alike
             if alike:
