@@ -65,7 +65,7 @@ import threading
 import time
 import tomllib
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -126,6 +126,9 @@ class Step:
     argv: tuple[str, ...]
     done: Path          # exists (and is complete) when the step is done
     want: int = 0       # record: the episodes the dataset must hold
+    task: str = ""      # nav | arm
+    rate: int = 0       # control rate, Hz
+    group: str = ""     # eval: the plan's condition group (EVAL_GROUPS)
 
 
 def sets(values: list[str]) -> list[str]:
@@ -169,7 +172,8 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
             sebvs + ["record", TOPOLOGY[task], "--episodes", str(episodes), "--out", str(data),
                      *fan_out, "--quiet",
                      *sets([*extra, f"topology.seed={seed}", *PHYS, *RATE_SETS[rate],
-                            RANDOMISE[task]])]), data / "index.json", episodes))
+                            RANDOMISE[task]])]), data / "index.json", episodes,
+            task=task, rate=rate))
     for task, rate in keys:
         for modality, seeds in PLAN_SEEDS[rate].items():
             for seed in seeds:
@@ -178,7 +182,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
                     sebvs + ["train", "--task", task, "--modality", modality, "--data",
                              str(dataset_dir(task, rate)), "--out", str(ckpt), "--seed",
                              str(seed), "--threads", "1", "--no-progress", *RECIPE[task]]),
-                    ckpt / f"{task}-{modality}.pt"))
+                    ckpt / f"{task}-{modality}.pt", task=task, rate=rate))
     for task, rate in keys:
         seeds = sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss})
         for seed in seeds:
@@ -195,7 +199,8 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
                              "--episodes", str(EPISODES_PER_CELL), "--conditions", conditions,
                              "--scenarios", scenarios, *rate_args, *rows,
                              *fan_out, "--out", str(d),
-                             *sets(EVAL_SETS[task])]), d / "results.json"))
+                             *sets(EVAL_SETS[task])]), d / "results.json",
+                    task=task, rate=rate, group=group))
     for task, rate in keys:
         runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
                 for g, _, _ in EVAL_GROUPS[task]]
@@ -204,7 +209,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
             [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs,
              *READ_RULE, *metric, "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
-            read.with_suffix(".json")))
+            read.with_suffix(".json"), task=task, rate=rate))
     return steps
 
 
@@ -246,7 +251,7 @@ def smoke_steps(out: Path, workers: int, cells: set[str] | None) -> list[Step]:
             argv = [a for a in argv if not a.startswith(tuple(
                 f"seed{s}=" for s in range(3) if s not in SMOKE_SEEDS))]
             _set_arg(argv, "--min-ahead", str(len(SMOKE_SEEDS)))
-        steps.append(Step(step.kind, f"smoke: {step.label}", tuple(argv), step.done, step.want))
+        steps.append(replace(step, label=f"smoke: {step.label}", argv=tuple(argv)))
     return steps
 
 
@@ -466,7 +471,7 @@ def step_work(step: Step, epochs: float | None = None) -> float:
         data = Path(argv[argv.index("--data") + 1])
         frames = (sum(e.get("frames", 0) for e in DatasetIndex(data).episodes())
                   if (data / "index.json").exists() else
-                  planned_frames(argv[argv.index("--task") + 1], int(step.label.split()[2])))
+                  planned_frames(step.task, step.rate))
         record = training_record(step)
         if record is not None:
             epochs = record["epochs_run"]
@@ -520,16 +525,14 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     resumed part, see training_record), which the log misses for a part stopped before
     the driver wrote exit lines; one left is sized by the epochs its task's done ones
     ran. Trainings run ``parallel`` at once."""
-    def group(step: Step) -> str:
-        words = step.label.split()
-        return " ".join(words[:4] + (words[-1:] if step.kind == "eval" else []))
+    def group(step: Step) -> tuple:
+        return step.kind, step.task, step.rate, step.group
 
     def slower_like(done: Step, left: Step) -> bool:
         """An evaluation of the same task and group at a slower control rate: a tick
         costs the same or less there, so scaling by simulated seconds gives a lower
         bound."""
-        d, l = done.label.split(), left.label.split()
-        return d[1] == l[1] and d[-1] == l[-1] and int(d[2]) < int(l[2])
+        return done.task == left.task and done.group == left.group and done.rate < left.rate
 
     records = [(s, r) for s in steps if (r := training_record(s)) is not None]
     took = {**took, **{s.label: float(r["seconds"]) for s, r in records}}
