@@ -74,3 +74,25 @@ def test_what_cannot_be_widened_is_refused_naming_the_file(tmp_path, capsys):
         tool.widen_dataset(plain, tmp_path / "out3", 1, progress=False)
     with pytest.raises(ValueError, match="another directory"):
         tool.widen_dataset(plain, plain, 2, progress=False)
+
+
+def test_a_failed_copy_leaves_no_partial_file_and_loses_no_finished_episode(tmp_path,
+                                                                            monkeypatch):
+    src = make_dataset(tmp_path / "src", episodes=2, frames=6, height=16, width=16)
+    dst = tmp_path / "wide"
+    real = tool.shutil.copyfile
+    calls = []
+
+    def full_disk_on_second(a, b):
+        calls.append(a)
+        if len(calls) == 2:
+            Path(b).write_bytes(b"half")
+            raise OSError(28, "No space left on device")
+        return real(a, b)
+    monkeypatch.setattr(tool.shutil, "copyfile", full_disk_on_second)
+    with pytest.raises(OSError, match="No space left"):
+        tool.widen_dataset(src, dst, 2, progress=False)
+    assert sorted(p.name for p in dst.iterdir()) == ["episode_0000.h5", "index.json"]
+    monkeypatch.setattr(tool.shutil, "copyfile", real)
+    assert tool.widen_dataset(src, dst, 2, progress=False)["widened"] == 1
+    assert check_dataset(dst).problems == []

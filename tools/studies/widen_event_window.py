@@ -81,19 +81,23 @@ def widen_episode(src: Path, dst: Path, periods: int) -> None:
     with h5py.File(src, "r") as f:      # refused before anything is written
         window = _episode_window(f, src)
     partial = dst.with_name(dst.name + ".partial")
-    shutil.copyfile(src, partial)
-    with h5py.File(partial, "r+") as f:
-        data = f[FRAMES]
-        data[...] = widened(data[...], periods)
-        keys = set(json.loads(f.attrs.get("json_keys", "[]")))
-        f.attrs["event_window_s"] = window * periods
-        f.attrs["derived"] = json.dumps({
-            "from": str(src), "sha256": file_sha256(src), "periods": periods,
-            "tool": "tools/studies/widen_event_window.py",
-            "source_event_window_s": window})
-        f.attrs["json_keys"] = json.dumps(sorted(keys | {"derived"}))
-    with open(partial, "rb+") as fh:
-        os.fsync(fh.fileno())
+    try:
+        shutil.copyfile(src, partial)
+        with h5py.File(partial, "r+") as f:
+            data = f[FRAMES]
+            data[...] = widened(data[...], periods)
+            keys = set(json.loads(f.attrs.get("json_keys", "[]")))
+            f.attrs["event_window_s"] = window * periods
+            f.attrs["derived"] = json.dumps({
+                "from": str(src), "sha256": file_sha256(src), "periods": periods,
+                "tool": "tools/studies/widen_event_window.py",
+                "source_event_window_s": window})
+            f.attrs["json_keys"] = json.dumps(sorted(keys | {"derived"}))
+        with open(partial, "rb+") as fh:
+            os.fsync(fh.fileno())
+    except BaseException:       # a full disk, an interrupt: no half-written file stays
+        partial.unlink(missing_ok=True)
+        raise
     os.replace(partial, dst)
 
 
