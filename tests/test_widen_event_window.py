@@ -44,7 +44,7 @@ def test_a_dataset_is_widened_whole_and_resumes(tmp_path):
             np.testing.assert_array_equal(b.rgb[...], a.rgb[...])
             np.testing.assert_array_equal(b.target[...], a.target[...])
             assert b.attrs["derived"]["periods"] == 3
-            assert b.attrs["derived"]["from"] == str(src / e["file"])
+            assert b.attrs["derived"]["from"] == str((src / e["file"]).resolve())
             assert b.attrs["event_window_s"] == pytest.approx(3 * a.attrs["event_window_s"])
     # an interrupted run: the last episode never reached the index
     index = json.loads((dst / "index.json").read_text())

@@ -89,7 +89,7 @@ def widen_episode(src: Path, dst: Path, periods: int) -> None:
             keys = set(json.loads(f.attrs.get("json_keys", "[]")))
             f.attrs["event_window_s"] = window * periods
             f.attrs["derived"] = json.dumps({
-                "from": str(src), "sha256": file_sha256(src), "periods": periods,
+                "from": str(src.resolve()), "sha256": file_sha256(src), "periods": periods,
                 "tool": "tools/studies/widen_event_window.py",
                 "source_event_window_s": window})
             f.attrs["json_keys"] = json.dumps(sorted(keys | {"derived"}))
