@@ -27,8 +27,6 @@ import numpy as np
 
 from sebvs.runtime import Actor, Message, Range
 
-# frames of an episode may trail its end message (they pass the camera and emulator)
-FINALIZE_AFTER_S = 1.0
 # ticks held waiting for their partner frame (25.6 s at 10 Hz, ~20 MB of 160 px RGB). As
 # deep as the inputs' queues (sebvs/eval/run.py: 256): a writer that falls behind drains
 # one socket's backlog before the other's, so a shorter bound took event frames still
@@ -48,6 +46,9 @@ class VideoWriter(Actor):
         # = the sim's control_hz: the video plays in sim time
         fps: Annotated[float, Range(gt=0, le=1000)] = 10.0
         scale: Annotated[int, Range(ge=1, le=16)] = 3   # nearest-neighbour upscaling
+        # how long after an episode's end message its trailing frames (they pass the camera
+        # and emulator) are waited for; the run must outlast it (sebvs/eval/run.py)
+        finalize_after_s: Annotated[float, Range(gt=0, le=60)] = 1.0
 
     async def setup(self) -> None:
         p = self.params
@@ -118,7 +119,8 @@ class VideoWriter(Actor):
             self._close(ep)
         else:
             loop = asyncio.get_running_loop()
-            self._timers[ep] = loop.call_later(FINALIZE_AFTER_S, self._finalize, ep)
+            self._timers[ep] = loop.call_later(self.params.finalize_after_s,
+                                              self._finalize, ep)
 
     def _flush(self, through: int | None = None) -> None:
         """Write every tick now complete, oldest first; ticks <= `through` in any case."""

@@ -307,7 +307,6 @@ def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_pat
 def test_a_video_run_lingers_past_the_writers_finalize_wait(tmp_path):
     """The run stops when the sim's linger ends; a video's trailing frames still queued on
     the writer's inputs would be lost, so --video lengthens it (a user's --set still wins)."""
-    from actors.video import FINALIZE_AFTER_S
     from sebvs.eval.run import Run
     from sebvs.runtime.topology import load_topology
     for extra, linger in (([], None), (["sim.linger_s=7.0"], 7.0)):
@@ -316,7 +315,8 @@ def test_a_video_run_lingers_past_the_writers_finalize_wait(tmp_path):
         for modality in ("rgb+event", "expert", "no_action"):
             topo = load_topology(*plan.overrides(Run("nominal", "indoor", modality)))
             got = topo.actors["sim"].params["linger_s"]
-            assert got == (linger or got) and got > FINALIZE_AFTER_S, (modality, got)
+            wait = topo.actors["video"].params["finalize_after_s"]
+            assert got == (linger or got) and got > wait, (modality, got, wait)
     plan = EvalPlan(task="nav", modalities=["rgb"], conditions=["nominal"], episodes=1,
                     out=tmp_path)
     topo = load_topology(*plan.overrides(Run("nominal", "indoor", "rgb")))

@@ -147,7 +147,8 @@ TASKS = {
 # the learned rows: the paper's three, and the rgb+diff control when asked for by name
 MODALITIES = PAPER_MODALITIES + CONTROL_MODALITIES
 BASELINE = "no_action"
-VIDEO_DRAIN_MARGIN_S = 0.5     # the sim's linger beyond the video writer's finalize wait
+VIDEO_FINALIZE_S = 1.0         # the video writer's wait for an episode's trailing frames
+VIDEO_DRAIN_MARGIN_S = 0.5     # the sim's linger beyond that wait
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
 
@@ -310,10 +311,10 @@ class EvalPlan:
         if "events" in MODALITY_INPUTS.get(run.modality, ()):
             sets.append('video.inputs.events={from="accumulator/frames", queue=256}')
         # The run stops when the sim's linger ends, dropping what is still queued on the
-        # writer's inputs; the writer waits FINALIZE_AFTER_S for an episode's trailing
+        # writer's inputs; the writer waits VIDEO_FINALIZE_S for an episode's trailing
         # frames, so the sim lingers longer than that (a --set sim.linger_s still wins)
-        from actors.video import FINALIZE_AFTER_S
-        sets.append(f"sim.linger_s={FINALIZE_AFTER_S + VIDEO_DRAIN_MARGIN_S}")
+        sets += [f"video.finalize_after_s={VIDEO_FINALIZE_S}",
+                 f"sim.linger_s={VIDEO_FINALIZE_S + VIDEO_DRAIN_MARGIN_S}"]
         return sets
 
     def rate_overrides(self, run: Run) -> list[str]:
