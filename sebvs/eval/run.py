@@ -319,7 +319,7 @@ class EvalPlan:
 
     def rate_overrides(self, run: Run) -> list[str]:
         """The control rate as a variable: the sim's ticks, the tracker's, the event
-        frames' window (one tick, where the checkpoint does not name one), a render rate
+        frames' window (one tick; overrides() puts a checkpoint's own after it), a render rate
         that is a whole multiple of the control rate (at least the one the topology or the
         condition asks for) and a physics rate that is a whole multiple of that (at least
         the topology's)."""
@@ -341,10 +341,7 @@ class EvalPlan:
                 f"tracker.control_hz={hz}",
                 f"sim.timestep={1.0 / physics}" if sim.get("timestep")
                 else f"sim.physics_hz={physics}"]
-        # one tick, unless the checkpoint says which window it learned from: the policy
-        # then sees the frames it was trained on (event_frame_overrides set that window)
-        if "events" in MODALITY_INPUTS.get(run.modality, ()) and not isinstance(
-                (self.event_frames(run.modality) or {}).get("window_s"), (int, float)):
+        if "events" in MODALITY_INPUTS.get(run.modality, ()):
             sets.append(f"accumulator.window_s={1.0 / hz}")
         return sets
 
@@ -386,12 +383,14 @@ class EvalPlan:
             return self.policy_topology, common + sets + self.rate_overrides(run) + self.extra
         sets = [f'policy.modality="{run.modality}"', f'policy.directory="{self.checkpoints}"',
                 f'policy.modalities=["{run.modality}"]']
+        events = []
         if "events" not in MODALITY_INPUTS[run.modality]:   # no events wired: the
             sets.append('policy.inputs={rgb="camera/rgb"}')   # event chain is pruned
-        else:
-            sets += self.event_frame_overrides(run.modality)
-            sets += event_sensor_overrides(self.task, run.condition)
-        return self.policy_topology, common + sets + self.rate_overrides(run) + self.extra
+        else:   # after the rate's: a window the checkpoint learned from wins over one tick
+            events = (self.event_frame_overrides(run.modality)
+                      + event_sensor_overrides(self.task, run.condition))
+        return self.policy_topology, (common + sets + self.rate_overrides(run) + events
+                                      + self.extra)
 
     def event_frames(self, modality: str) -> dict | None:
         """The checkpoint config's "event_frames" (how its training data's event frames
