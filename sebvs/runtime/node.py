@@ -247,7 +247,7 @@ class Node:
             return
         self.event("source_done", {})
 
-    async def _shutdown(self, set_up: bool = True) -> int:
+    async def _shutdown(self, set_up: bool) -> int:
         self.inputs.stop_reading()
         self.outputs.stop_watching()
         asyncio.get_running_loop().remove_reader(self.telemetry_socket.FD)

@@ -43,6 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from sebvs.data.episode import PARTIAL  # noqa: E402
 from sebvs.data.index import DatasetIndex, file_sha256, make_entry  # noqa: E402
 
 FRAMES = "events/frame"
@@ -80,7 +81,7 @@ def widen_episode(src: Path, dst: Path, periods: int) -> None:
     Written as ``dst``.partial and renamed into place once whole, as the recorder does."""
     with h5py.File(src, "r") as f:      # refused before anything is written
         window = _episode_window(f, src)
-    partial = dst.with_name(dst.name + ".partial")
+    partial = dst.with_name(dst.name + PARTIAL)   # the name `sebvs data check` reports as lost
     try:
         shutil.copyfile(src, partial)
         with h5py.File(partial, "r+") as f:
