@@ -122,7 +122,7 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert data["tasks"]["nav"]["alike"][10] == {
             "expert": [["nominal_physical/indoor", "hdr/indoor"]]}
         assert "expert in nominal_physical/indoor = hdr/indoor." in text
-        assert "no_action in" not in text and data["tasks"]["nav"]["alike"][30] == {}
+        assert "no_action in" not in text and data["tasks"]["nav"]["alike"][30] is None
         means = data["tasks"]["nav"]["rows"][10]
         assert means["rgb+event"]["hdr/indoor"] == pytest.approx(0.8)
         assert means["no_action"]["hdr/indoor"] == pytest.approx(0.05)
@@ -130,6 +130,9 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert data["tasks"]["nav"]["seeds_found"][10] == {
             "rgb+event": 3, "rgb+diff": 3, "expert": 1, "no_action": 1}
         assert "| rgb+diff (3 seeds) | rgb+event (3 seeds) |" in text
+        # a rate not read yet shows how far its evaluations are, not their figures
+        assert "nav at 30 Hz: not read yet (0 of its 6 planned evaluations done)" in text
+        assert "nav at 30 Hz, every row" not in text and data["tasks"]["nav"]["rows"][30] is None
         assert rep.main(["--out", str(tmp_path), "--markdown", str(tmp_path / "r.md"),
                          "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
@@ -144,7 +147,11 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
         assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 2
         # while a seed's evaluation is missing, the header says how many the figures hold
         shutil.rmtree(study.eval_dir(tmp_path, "nav", 10, 2, "main").parent)
+        (tmp_path / "read" / "nav10.json").unlink()
         partial, _, _ = rep.report(tmp_path)
+        assert "nav at 10 Hz: not read yet (4 of its 6 planned evaluations done)" in partial
+        assert "2 of 3 seeds" not in partial
+        partial, _, _ = rep.report(tmp_path, unread_rows=True)
         assert "| rgb+diff (2 of 3 seeds) | rgb+event (2 of 3 seeds) |" in partial
         assert page.read_text() == "# Results\nno markers\n"       # left alone
 

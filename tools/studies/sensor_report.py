@@ -4,6 +4,7 @@ what tools/studies/sensor_study.py wrote, in the shape docs/study_sensors_plan.m
 
     tools/studies/sensor_report.py [--out studies/sensors] [--markdown FILE] [--json FILE]
                                    [--plot FILE] [--update docs/results.md]
+                                   [--unread-rows]
 
 Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff at each
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
@@ -12,7 +13,8 @@ plan's physics predicted and whether that held. Below it, per rate, the descript
 each modality's mean (over its training seeds), the expert and no action, per cell, the
 cells in which the expert or no action played the same episodes (alike_cells: their
 figures repeat there, and the line says why), and the CPUs and GL stacks the evaluations
-ran on (the driver's ledger, OUT/steps.jsonl).
+ran on (the driver's ledger, OUT/steps.jsonl). A rate the plan has not read yet shows how
+many of its evaluations are in, not their figures (--unread-rows shows those too).
 
 Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
 JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What the physics
@@ -261,8 +263,20 @@ def rows_table(task: str, rate: int, means: dict[str, dict[str, float]],
     return lines
 
 
-def report(out: Path) -> tuple[str, dict, bool]:
-    """(markdown, the data behind it, whether every planned cell has a reading)."""
+def planned_evaluations(out: Path, task: str, rate: int) -> tuple[int, int]:
+    """(how many of the plan's evaluations of the task and rate are done, how many it has)."""
+    steps = [s for s in plan_steps(out, 1, {f"{task}{rate}"}) if s.kind == "eval"]
+    return sum(s.done.exists() for s in steps), len(steps)
+
+
+def report(out: Path, unread_rows: bool = False) -> tuple[str, dict, bool]:
+    """(markdown, the data behind it, whether every planned cell has a reading).
+
+    A task and rate without a reading shows no figures, only how many of its evaluations
+    are in: the plan reads them when all three seeds' are, and a page (or a session)
+    that showed partial means before then would invite reading them early.
+    ``unread_rows`` shows them anyway, each learned row's header saying how many of its
+    seeds they hold."""
     lines = [f"The sensor study's readings, by the rule of {PLAN_FILE} (fixed before any "
              f"recording): RGB+Event against the RGB+Diff control, three training seeds "
              f"each, test seeds never used before.", ""]
@@ -279,16 +293,23 @@ def report(out: Path) -> tuple[str, dict, bool]:
         metric = tables_metric(task, tables)
         data["tasks"][task] = {"readings": tables, "rows": {}, "machines": {}}
         for rate in RATES:
-            means, found = row_means(out, task, rate, metric)
-            data["tasks"][task]["rows"][rate] = means
-            data["tasks"][task].setdefault("seeds_found", {})[rate] = found
-            lines += [f"{task} at {rate} Hz, every row ({metric}, %, mean over the seeds "
-                      f"each modality was trained with; test seed episodes):", "",
-                      *rows_table(task, rate, means, found), ""]
-            alike = alike_cells(out, task, rate)
-            data["tasks"][task].setdefault("alike", {})[rate] = alike
-            if alike:
-                lines += [alike_line(alike), ""]
+            if tables[rate] is None and not unread_rows:
+                have, planned = planned_evaluations(out, task, rate)
+                for key in ("rows", "seeds_found", "alike"):
+                    data["tasks"][task].setdefault(key, {})[rate] = None
+                lines += [f"{task} at {rate} Hz: not read yet ({have} of its {planned} "
+                          f"planned evaluations done); its rows appear with its reading.", ""]
+            else:
+                means, found = row_means(out, task, rate, metric)
+                data["tasks"][task]["rows"][rate] = means
+                data["tasks"][task].setdefault("seeds_found", {})[rate] = found
+                lines += [f"{task} at {rate} Hz, every row ({metric}, %, mean over the "
+                          f"seeds each modality was trained with; test seed episodes):",
+                          "", *rows_table(task, rate, means, found), ""]
+                alike = alike_cells(out, task, rate)
+                data["tasks"][task].setdefault("alike", {})[rate] = alike
+                if alike:
+                    lines += [alike_line(alike), ""]
             found = eval_machines(out, task, rate)
             data["tasks"][task]["machines"][rate] = found
             if found:
@@ -393,8 +414,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--update", type=Path, metavar="DOC",
                     help=f"put the tables into DOC (docs/results.md) between its lines "
                          f"{BEGIN!r} and {END!r}, the rest of it left as it is")
+    ap.add_argument("--unread-rows", action="store_true",
+                    help="also show the rows of a task and rate the plan has not read yet "
+                         "(means over the seeds evaluated so far; off by default, so that "
+                         "nothing is read before its time)")
     args = ap.parse_args(argv)
-    text, data, done = report(args.out)
+    text, data, done = report(args.out, args.unread_rows)
     if args.update:
         try:
             args.update.write_text(replace_block(args.update.read_text(), text))
