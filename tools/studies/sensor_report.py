@@ -211,14 +211,18 @@ def alike_line(alike: dict[str, list[list[str]]]) -> str:
             f"target moves the same way.")
 
 
+def eval_steps(out: Path, task: str, rate: int) -> list:
+    """The plan's evaluation steps of the task and rate, done or not."""
+    return [s for s in plan_steps(out, 1, {f"{task}{rate}"}) if s.kind == "eval"]
+
+
 def eval_machines(out: Path, task: str, rate: int) -> dict[str, dict[str, list[str]]]:
     """{evaluation step label: {"cpus": the CPUs its runs ran on, "gl": the GL stacks they
     rendered with}}, from the driver's ledger, for the plan's evaluations of the task and
     rate that have results (an empty list: run before the ledger named them)."""
     return {step.label: {"cpus": sorted(ledger_machines(out / LEDGER, step.label)),
                          "gl": sorted(ledger_machines(out / LEDGER, step.label, "gl"))}
-            for step in plan_steps(out, 1, {f"{task}{rate}"})
-            if step.kind == "eval" and step.done.exists()}
+            for step in eval_steps(out, task, rate) if step.done.exists()}
 
 
 def machines_line(found: dict[str, dict[str, list[str]]]) -> str:
@@ -265,7 +269,7 @@ def rows_table(task: str, rate: int, means: dict[str, dict[str, float]],
 
 def planned_evaluations(out: Path, task: str, rate: int) -> tuple[int, int]:
     """(how many of the plan's evaluations of the task and rate are done, how many it has)."""
-    steps = [s for s in plan_steps(out, 1, {f"{task}{rate}"}) if s.kind == "eval"]
+    steps = eval_steps(out, task, rate)
     return sum(s.done.exists() for s in steps), len(steps)
 
 
