@@ -71,7 +71,7 @@ def _episode(modality, condition, scenario, k, value):
             "metrics": {"strict_success": value}}
 
 
-def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
+def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path, capsys):
     """Three seeds where events lead by 30 points in hdr indoors, tie in nominal light, and
     have no scored episode under flicker: helps (predicted: held), no clear difference
     (held), no reading; the 30 Hz column and the arm are not yet run."""
@@ -145,6 +145,19 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path):
             f"# Results\nprose\n{rep.BEGIN}\n{text.rstrip()}\n{rep.END}\nmore prose\n"
         page.write_text("# Results\nno markers\n")
         assert rep.main(["--out", str(tmp_path), "--update", str(page)]) == 2
+        # --reading: one reading in full, each seed's own difference and the sign test
+        capsys.readouterr()
+        assert rep.main(["--out", str(tmp_path), "--reading", "nav10"]) == 0
+        detail = {line.split(" | ")[0].lstrip("| "): line
+                  for line in capsys.readouterr().out.splitlines() if line.startswith("| ")}
+        assert detail["hdr/indoor"] == ("| hdr/indoor | +30.0 [+30.0, +30.0] | 3/0 | +30.0, "
+                                        "+30.0, +30.0 | 10/0/0 (p 0.00195) | helps | helps "
+                                        "| held |")
+        assert "no reading" in detail["flicker_100/indoor"]
+        assert "| 0/0/10 (p 1) | no clear difference |" in detail["nominal_physical/indoor"]
+        assert rep.main(["--out", str(tmp_path), "--reading", "nav30"]) == 2
+        assert "nav30.json" in capsys.readouterr().err
+        assert rep.main(["--out", str(tmp_path), "--reading", "nav"]) == 2
         # while a seed's evaluation is missing, the header says how many the figures hold
         shutil.rmtree(study.eval_dir(tmp_path, "nav", 10, 2, "main").parent)
         (tmp_path / "read" / "nav10.json").unlink()

@@ -5,6 +5,7 @@ what tools/studies/sensor_study.py wrote, in the shape docs/study_sensors_plan.m
     tools/studies/sensor_report.py [--out studies/sensors] [--markdown FILE] [--json FILE]
                                    [--plot FILE] [--update docs/results.md]
                                    [--unread-rows]
+    tools/studies/sensor_report.py --reading nav30
 
 Per task, one table: per cell, the plan's reading of RGB+Event against RGB+Diff at each
 control rate (the mean difference over the three training seeds, the episodes' paired 95 %
@@ -21,6 +22,9 @@ JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What 
 predicts", copied into PREDICTIONS below. A cell the plan lists that has no reading yet is
 shown as "not yet run"; one that seed_table.py left out (a row scored no episode of it)
 as "no reading". The exit code is 0 when every planned cell has a reading, else 3.
+
+--reading TASKRATE prints one reading in full (each training seed's difference, the
+episodes' sign test), the figures a reading's log entry quotes.
 
 --plot draws the headline tables as one figure: per task and cell, the effect and its
 interval at each rate, coloured by the rule's verdict, the rule's threshold as a band, and
@@ -129,6 +133,40 @@ def task_table(task: str, tables: dict[int, dict | None]) -> tuple[list[str], in
                      + " / ".join(predicted(pred[r]) for r in RATES) + " | "
                      + " / ".join(held(pred[r], f) for r, f in zip(RATES, found)) + " |")
     return lines, complete
+
+
+def reading_detail(task: str, rate: int, table: dict) -> list[str]:
+    """One reading in full, for the study's log and a session's note: per cell the effect
+    and its interval, each training seed's own difference, the episodes' sign test, the
+    rule's verdict and the plan's prediction; every figure from seed_table.py's JSON, so
+    that none is typed by hand."""
+    runs = table["runs"]
+    lines = [f"{task} at {rate} Hz, {table['metric']}: {table['a']} - {table['b']} in points; "
+             f"mean over training seeds [episodes' paired 95 % interval]; each seed's own "
+             f"difference ({', '.join(runs)}); episodes ahead/behind/tied with the sign "
+             f"test's p; the rule's verdict (at least {table['rule']['min_diff_points']:g} "
+             f"points and {table['rule']['min_ahead']} seeds the same way)", "",
+             "| cell | effect | seeds ahead/behind | per seed | episodes (sign p) "
+             "| verdict | predicted | held |", "|---|" + "---|" * 7]
+    for condition, scenario in PLAN_CELLS[task]:
+        cell = f"{condition}/{scenario}"
+        text, found = reading_cell(table, cell)
+        pred = PREDICTIONS[(task, condition)][rate]
+        r = table["cells"].get(cell)
+        if found is None or r is None:
+            lines.append(f"| {cell} | {text} | | | | | {predicted(pred)} | - |")
+            continue
+        lo, hi = (100 * v for v in r["episodes"]["ci95"])
+        per_seed = ", ".join(f"{100 * r['per_run'][k]['diff']:+.1f}" for k in runs
+                             if k in r["per_run"])
+        ep = r["episodes"]
+        lines.append(f"| {cell} | {100 * r['mean_diff']:+.1f} [{lo:+.1f}, {hi:+.1f}] "
+                     f"| {r['ahead']}/{r['behind']} | {per_seed} "
+                     f"| {ep['wins']}/{ep['losses']}/{ep['ties']} (p {ep['p_sign']:.3g}) "
+                     f"| {found} | {predicted(pred)} | {held(pred, found)} |")
+    if table.get("left_out"):
+        lines += ["", f"Left out (a row scored no episode there): {', '.join(table['left_out'])}."]
+    return lines
 
 
 def tables_metric(task: str, tables: dict[int, dict | None]) -> str:
@@ -407,6 +445,24 @@ def replace_block(doc: str, tables: str) -> str:
     return "".join(lines[:b + 1]) + tables.rstrip("\n") + "\n" + "".join(lines[e:])
 
 
+def print_reading(out: Path, name: str) -> int:
+    """--reading: 0 and the reading's detail, or 2 and what was wrong."""
+    task, rate = name.rstrip("0123456789"), name[len(name.rstrip("0123456789")):]
+    if task not in PLAN_CELLS or not rate or int(rate) not in RATES:
+        print(f"sensor_report: --reading {name!r}: expected one of "
+              f"{', '.join(f'{t}{r}' for t in PLAN_CELLS for r in RATES)}", file=sys.stderr)
+        return 2
+    path = out / "read" / f"{name}.json"
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        print(f"sensor_report: --reading {name}: {path}: {exc} (not read yet?)",
+              file=sys.stderr)
+        return 2
+    print("\n".join(reading_detail(task, int(rate), table)))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -422,7 +478,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="also show the rows of a task and rate the plan has not read yet "
                          "(means over the seeds evaluated so far; off by default, so that "
                          "nothing is read before its time)")
+    ap.add_argument("--reading", metavar="TASKRATE",
+                    help="print one reading in full instead (e.g. nav30: each seed's "
+                         "difference, the episodes' sign test, the prediction), from "
+                         "OUT/read/TASKRATE.json")
     args = ap.parse_args(argv)
+    if args.reading:
+        return print_reading(args.out, args.reading)
     text, data, done = report(args.out, args.unread_rows)
     if args.update:
         try:
