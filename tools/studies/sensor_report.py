@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT))
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
                                         PLAN_SEEDS, READ_METRIC, READ_RULE, eval_dir,
-                                        ledger_machines, plan_steps)
+                                        ledger_machines, plan_steps, reading_path)
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
@@ -108,10 +108,14 @@ def reading_cell(table: dict | None, cell: str) -> tuple[str, str | None]:
     r = table["cells"].get(cell)
     if r is None:
         return "not yet run", None
-    lo, hi = (100 * v for v in r["episodes"]["ci95"])
     found = verdict(r["reading"])
-    return (f"{100 * r['mean_diff']:+.1f} [{lo:+.1f}, {hi:+.1f}], {r['ahead']}/{r['behind']}, "
-            f"**{found}**"), found
+    return f"{effect_text(r)}, {r['ahead']}/{r['behind']}, **{found}**", found
+
+
+def effect_text(r: dict) -> str:
+    """A read cell's effect in points and its episodes' paired 95 % interval."""
+    lo, hi = (100 * v for v in r["episodes"]["ci95"])
+    return f"{100 * r['mean_diff']:+.1f} [{lo:+.1f}, {hi:+.1f}]"
 
 
 def task_table(task: str, tables: dict[int, dict | None]) -> tuple[list[str], int]:
@@ -152,16 +156,14 @@ def reading_detail(task: str, rate: int, table: dict) -> list[str]:
         cell = f"{condition}/{scenario}"
         text, found = reading_cell(table, cell)
         pred = PREDICTIONS[(task, condition)][rate]
-        r = table["cells"].get(cell)
-        if found is None or r is None:
+        if found is None:
             lines.append(f"| {cell} | {text} | | | | | {predicted(pred)} | - |")
             continue
-        lo, hi = (100 * v for v in r["episodes"]["ci95"])
+        r = table["cells"][cell]
         per_seed = ", ".join(f"{100 * r['per_run'][k]['diff']:+.1f}" for k in runs
                              if k in r["per_run"])
         ep = r["episodes"]
-        lines.append(f"| {cell} | {100 * r['mean_diff']:+.1f} [{lo:+.1f}, {hi:+.1f}] "
-                     f"| {r['ahead']}/{r['behind']} | {per_seed} "
+        lines.append(f"| {cell} | {effect_text(r)} | {r['ahead']}/{r['behind']} | {per_seed} "
                      f"| {ep['wins']}/{ep['losses']}/{ep['ties']} (p {ep['p_sign']:.3g}) "
                      f"| {found} | {predicted(pred)} | {held(pred, found)} |")
     if table.get("left_out"):
@@ -327,7 +329,7 @@ def report(out: Path, unread_rows: bool = False) -> tuple[str, dict, bool]:
     for task in ("nav", "arm"):
         tables = {}
         for rate in RATES:
-            path = out / "read" / f"{task}{rate}.json"
+            path = reading_path(out, task, rate)
             tables[rate] = json.loads(path.read_text()) if path.exists() else None
         rows, complete = task_table(task, tables)
         done &= complete == len(PLAN_CELLS[task])
@@ -447,19 +449,20 @@ def replace_block(doc: str, tables: str) -> str:
 
 def print_reading(out: Path, name: str) -> int:
     """--reading: 0 and the reading's detail, or 2 and what was wrong."""
-    task, rate = name.rstrip("0123456789"), name[len(name.rstrip("0123456789")):]
-    if task not in PLAN_CELLS or not rate or int(rate) not in RATES:
-        print(f"sensor_report: --reading {name!r}: expected one of "
-              f"{', '.join(f'{t}{r}' for t in PLAN_CELLS for r in RATES)}", file=sys.stderr)
+    names = {f"{task}{rate}": (task, rate) for task in PLAN_CELLS for rate in RATES}
+    if name not in names:
+        print(f"sensor_report: --reading {name!r}: expected one of {', '.join(names)}",
+              file=sys.stderr)
         return 2
-    path = out / "read" / f"{name}.json"
+    task, rate = names[name]
+    path = reading_path(out, task, rate)
     try:
         table = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         print(f"sensor_report: --reading {name}: {path}: {exc} (not read yet?)",
               file=sys.stderr)
         return 2
-    print("\n".join(reading_detail(task, int(rate), table)))
+    print("\n".join(reading_detail(task, rate, table)))
     return 0
 
 

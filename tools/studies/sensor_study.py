@@ -154,6 +154,11 @@ def eval_dir(out: Path, task: str, rate: int, seed: int, group: str) -> Path:
     return out / "eval" / f"{task}{rate}" / f"seed{seed}" / group
 
 
+def reading_path(out: Path, task: str, rate: int) -> Path:
+    """Where the read step keeps seed_table.py's JSON of a task and rate (its plot beside)."""
+    return out / "read" / f"{task}{rate}.json"
+
+
 def plan_steps(out: Path, workers: int, cells: set[str] | None,
                ray: str | None = None) -> list[Step]:
     """Every step of the plan, in its order: recordings, trainings, evaluations, readings.
@@ -205,11 +210,11 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
         runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
                 for g, _, _ in EVAL_GROUPS[task]]
         metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
-        read = out / "read" / f"{task}{rate}"
+        read = reading_path(out, task, rate)
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
             [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs,
-             *READ_RULE, *metric, "--json", str(read) + ".json", "--plot", str(read) + ".png"]),
-            read.with_suffix(".json"), task=task, rate=rate))
+             *READ_RULE, *metric, "--json", str(read), "--plot", str(read.with_suffix(".png"))]),
+            read, task=task, rate=rate))
     return steps
 
 
