@@ -169,6 +169,16 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path, capsy
         assert page.read_text() == "# Results\nno markers\n"       # left alone
 
 
+def test_a_difference_that_sums_to_zero_reads_plus_zero():
+    """Seeds at -5, +5 and 0 points average to -1e-17 in floating point: the tables say
+    +0.0 there (arm 10 Hz, nominal_physical/multi, first printed -0.0)."""
+    with tool_module("studies/sensor_report") as rep:
+        assert rep.points((-0.05 + 0.05 + 0.0) / 3 - 1e-17) == "+0.0"
+        assert rep.points(-0.15) == "-15.0" and rep.points(0.07017) == "+7.0"
+        r = {"mean_diff": -1e-17, "episodes": {"ci95": [-0.05, 0.05]}}
+        assert rep.effect_text(r) == "+0.0 [-5.0, +5.0]"
+
+
 def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
     """Study datasets of these frame counts under root (their index only), in place of
     datasets/, which a checkout does not hold."""

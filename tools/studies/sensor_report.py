@@ -112,10 +112,16 @@ def reading_cell(table: dict | None, cell: str) -> tuple[str, str | None]:
     return f"{effect_text(r)}, {r['ahead']}/{r['behind']}, **{found}**", found
 
 
+def points(share: float) -> str:
+    """A difference of shares in signed percentage points, one decimal; a mean that sums
+    to zero in floating point (-1e-17) reads +0.0, not -0.0."""
+    return f"{round(100 * share, 1) + 0.0:+.1f}"
+
+
 def effect_text(r: dict) -> str:
     """A read cell's effect in points and its episodes' paired 95 % interval."""
-    lo, hi = (100 * v for v in r["episodes"]["ci95"])
-    return f"{100 * r['mean_diff']:+.1f} [{lo:+.1f}, {hi:+.1f}]"
+    lo, hi = (points(v) for v in r["episodes"]["ci95"])
+    return f"{points(r['mean_diff'])} [{lo}, {hi}]"
 
 
 def task_table(task: str, tables: dict[int, dict | None]) -> tuple[list[str], int]:
@@ -160,7 +166,7 @@ def reading_detail(task: str, rate: int, table: dict) -> list[str]:
             lines.append(f"| {cell} | {text} | | | | | {predicted(pred)} | - |")
             continue
         r = table["cells"][cell]
-        per_seed = ", ".join(f"{100 * r['per_run'][k]['diff']:+.1f}" for k in runs
+        per_seed = ", ".join(points(r['per_run'][k]['diff']) for k in runs
                              if k in r["per_run"])
         ep = r["episodes"]
         lines.append(f"| {cell} | {effect_text(r)} | {r['ahead']}/{r['behind']} | {per_seed} "
