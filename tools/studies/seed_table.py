@@ -54,6 +54,32 @@ def tagged(results: dict, tag: str) -> dict:
                                     for e in results["episodes"]]}
 
 
+class RunSpecError(ValueError):
+    """A run argument that is not NAME=DIR or NAME@TAG=DIR."""
+
+
+def load_runs(specs: list[str]) -> dict[str, dict]:
+    """The NAME=DIR (or NAME@TAG=DIR) arguments as {name: results}, each name's
+    directories merged (merge_runs). ValueError names the run that is wrong and why."""
+    parts: dict[str, list[tuple[str, dict]]] = {}
+    for spec in specs:
+        label, sep, path = spec.partition("=")
+        name, at, tag = label.partition("@")
+        if not sep or not name or not path or (at and not tag):
+            raise RunSpecError(f"a run is NAME=DIR or NAME@TAG=DIR, got {spec!r}")
+        try:
+            parts.setdefault(name, []).append((path, tagged(read_results(Path(path)), tag)))
+        except ValueError as exc:
+            raise ValueError(f"run {name!r}: {exc}") from None
+    runs = {}
+    for name, dirs in parts.items():
+        try:
+            runs[name] = merge_runs(dirs)
+        except ValueError as exc:
+            raise ValueError(f"run {name!r}: {exc}") from None
+    return runs
+
+
 def merge_runs(parts: list[tuple[str, dict]]) -> dict:
     """One training seed's evaluations, made into separate directories ((label, results)
     each), as one results dict: a modality evaluated apart (a control added later), or
@@ -206,24 +232,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write the table here")
     ap.add_argument("--plot", type=Path, help="also draw the differences here (PNG)")
     args = ap.parse_args(argv)
-    parts: dict[str, list[tuple[str, dict]]] = {}
-    for spec in args.runs:
-        label, sep, path = spec.partition("=")
-        name, at, tag = label.partition("@")
-        if not sep or not name or not path or (at and not tag):
-            ap.error(f"a run is NAME=DIR or NAME@TAG=DIR, got {spec!r}")
-        try:
-            parts.setdefault(name, []).append((path, tagged(read_results(Path(path)), tag)))
-        except ValueError as exc:
-            print(f"seed_table: run {name!r}: {exc}", file=sys.stderr)
-            return 2
-    runs = {}
-    for name, dirs in parts.items():
-        try:
-            runs[name] = merge_runs(dirs)
-        except ValueError as exc:
-            print(f"seed_table: run {name!r}: {exc}", file=sys.stderr)
-            return 2
+    try:
+        runs = load_runs(args.runs)
+    except RunSpecError as exc:
+        ap.error(str(exc))
+    except ValueError as exc:
+        print(f"seed_table: {exc}", file=sys.stderr)
+        return 2
     try:
         table = seed_table(runs, args.a, args.b, args.metric, args.min_diff, args.min_ahead)
     except ValueError as exc:

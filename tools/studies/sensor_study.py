@@ -207,15 +207,22 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
                              *sets(EVAL_SETS[task])]), d / "results.json",
                     task=task, rate=rate, group=group))
     for task, rate in keys:
-        runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
-                for g, _, _ in EVAL_GROUPS[task]]
-        metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
         read = reading_path(out, task, rate)
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
-            [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"), *runs,
-             *READ_RULE, *metric, "--json", str(read), "--plot", str(read.with_suffix(".png"))]),
+            [sys.executable, str(ROOT / "tools" / "studies" / "seed_table.py"),
+             *read_arguments(out, task, rate),
+             "--json", str(read), "--plot", str(read.with_suffix(".png"))]),
             read, task=task, rate=rate))
     return steps
+
+
+def read_arguments(out: Path, task: str, rate: int) -> list[str]:
+    """seed_table.py's arguments for a task and rate's reading: each training seed's
+    evaluations (NAME=DIR), the plan's rule and metric."""
+    runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
+            for g, _, _ in EVAL_GROUPS[task]]
+    metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
+    return [*runs, *READ_RULE, *metric]
 
 
 SMOKE_SEEDS = (0, 1)     # two training seeds: the fewest a seed table reads
