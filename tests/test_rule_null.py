@@ -81,6 +81,7 @@ def test_the_command_line_reads_runs_or_the_study_and_refuses_both(tmp_path, cap
         assert "run 's2'" in capsys.readouterr().err
         assert tool.main(["--study", "nav99"]) == 2
         assert "expected one of nav10" in capsys.readouterr().err
-        for bad in ([*specs, "--study", "nav10"], [], [*specs]):
+        for bad in ([*specs, "--study", "nav10"], [], [*specs], ["--study", "nav10", "--a", "rgb"],
+                    ["--study", "arm10", "--min-diff", "5"]):
             with pytest.raises(SystemExit):
                 tool.main(bad)

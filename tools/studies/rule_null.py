@@ -124,11 +124,10 @@ def markdown(name: str, result: dict) -> str:
 
 def study_runs(name: str) -> list[str]:
     """A sensor study reading's seed_table arguments, by its TASKRATE name (nav10...)."""
-    from tools.studies.sensor_study import STUDY_DIR, read_arguments
-    names = {f"{t}{r}": (t, r) for t in ("nav", "arm") for r in (10, 30)}
-    if name not in names:
-        raise ValueError(f"--study {name!r}: expected one of {', '.join(names)}")
-    return read_arguments(STUDY_DIR, *names[name])
+    from tools.studies.sensor_study import READINGS, STUDY_DIR, read_arguments
+    if name not in READINGS:
+        raise ValueError(f"--study {name!r}: expected one of {', '.join(READINGS)}")
+    return read_arguments(STUDY_DIR, *READINGS[name])
 
 
 def parser() -> argparse.ArgumentParser:
@@ -157,6 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if bool(args.study) == bool(args.runs):
         ap.error("give NAME=DIR runs or --study, one of the two")
+    if args.study and (args.a or args.b or args.metric or args.min_ahead is not None
+                       or args.min_diff != ap.get_default("min_diff")):
+        ap.error("--study reads each reading by its plan's rule and metric: give no --a, "
+                 "--b, --metric, --min-diff or --min-ahead with it")
     if args.draws < 1:
         ap.error(f"--draws must be at least 1, got {args.draws}")
     try:

@@ -43,7 +43,8 @@ sys.path.insert(0, str(ROOT))
 
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
-                                        PLAN_SEEDS, READ_METRIC, READ_RULE, eval_dir,
+                                        PLAN_SEEDS, READ_METRIC, READ_RULE, READINGS,
+                                        eval_dir,
                                         ledger_machines, plan_steps, reading_path)
 
 RATES = (10, 30)
@@ -455,12 +456,11 @@ def replace_block(doc: str, tables: str) -> str:
 
 def print_reading(out: Path, name: str) -> int:
     """--reading: 0 and the reading's detail, or 2 and what was wrong."""
-    names = {f"{task}{rate}": (task, rate) for task in PLAN_CELLS for rate in RATES}
-    if name not in names:
-        print(f"sensor_report: --reading {name!r}: expected one of {', '.join(names)}",
+    if name not in READINGS:
+        print(f"sensor_report: --reading {name!r}: expected one of {', '.join(READINGS)}",
               file=sys.stderr)
         return 2
-    task, rate = names[name]
+    task, rate = READINGS[name]
     path = reading_path(out, task, rate)
     try:
         table = json.loads(path.read_text())

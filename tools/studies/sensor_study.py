@@ -115,6 +115,8 @@ EVAL_GROUPS = {
     "arm": [("main", "nominal_physical,fast_physical,hdr,dusk_moving", "single,multi")],
 }
 EVAL_SETS = {"nav": ["sim.episode_s=10"], "arm": []}
+# the plan's task and rate pairs, in its order, by the name a reading goes by ("nav10")
+READINGS = {f"{t}{r}": (t, r) for t in ("nav", "arm") for r in (10, 30)}
 READ_RULE = ["--a", "rgb+event", "--b", "rgb+diff", "--min-diff", "10", "--min-ahead", "3"]
 READ_METRIC = {"nav": "strict_success", "arm": None}   # arm: the task's first, grasp
 
@@ -167,8 +169,7 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
     sebvs = [sys.executable, "-m", "sebvs.cli"]
     ray_args = [] if ray is None else ["--ray"] + ([ray] if ray else [])
     fan_out = ["--workers", str(workers), *ray_args]
-    keys = [(t, r) for t in ("nav", "arm") for r in (10, 30)
-            if cells is None or f"{t}{r}" in cells]
+    keys = [key for name, key in READINGS.items() if cells is None or name in cells]
     steps = []
     for task, rate in keys:
         seed, episodes, extra = PLAN_RECORDINGS[(task, rate)]
