@@ -181,13 +181,17 @@ def test_a_difference_that_sums_to_zero_reads_plus_zero():
 
 def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
     """Study datasets of these frame counts under root (their index only), in place of
-    datasets/, which a checkout does not hold."""
+    datasets/, which a checkout does not hold: each holds its plan's episodes (a shorter
+    one is still being recorded), the frames on the first."""
     monkeypatch.setattr(study, "dataset_dir", lambda task, rate: root / f"study_{task}{rate}")
     for name, n in frames.items():
+        task, rate = name.removeprefix("study_")[:3], int(name.removeprefix("study_")[3:])
+        episodes = study.PLAN_RECORDINGS[(task, rate)][1]
         (root / name).mkdir()
         (root / name / "index.json").write_text(json.dumps(
-            {"version": 1, "task": "nav", "episodes": [
-                {"file": f"episode_{i:04d}.h5", "frames": n // 4} for i in range(4)]}))
+            {"version": 1, "task": task, "episodes": [
+                {"file": f"episode_{i:04d}.h5", "frames": 0 if i else n}
+                for i in range(episodes)]}))
 
 
 def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path, monkeypatch):
@@ -601,3 +605,15 @@ def test_a_training_is_sized_by_the_plans_frames_before_its_dataset_exists(tmp_p
         monkeypatch.setattr(study, "dataset_dir", lambda task, rate: tmp_path / "none")
         train = next(s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "train")
         assert study.step_work(train) == 91_500 * 16
+        # while the recording runs, its index holds part of the plan: still the plan's
+        # frames (the arm 30 Hz estimate once read 636 of 1,500 episodes as the whole)
+        part = tmp_path / "part"
+        part.mkdir()
+        monkeypatch.setattr(study, "dataset_dir", lambda task, rate: part)
+        train = next(s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "train")
+        (part / "index.json").write_text(json.dumps({"version": 1, "task": "arm", "episodes": [
+            {"file": f"episode_{i:04d}.h5", "frames": 61} for i in range(636)]}))
+        assert study.step_work(train) == 91_500 * 16
+        (part / "index.json").write_text(json.dumps({"version": 1, "task": "arm", "episodes": [
+            {"file": f"episode_{i:04d}.h5", "frames": 60} for i in range(1500)]}))
+        assert study.step_work(train) == 90_000 * 16          # recorded: as indexed

@@ -476,14 +476,16 @@ def planned_frames(task: str, rate: int) -> int:
 
 def step_work(step: Step, epochs: float | None = None) -> float:
     """A step's size in the unit its time scales with: a training's frames (the dataset's,
-    as indexed, or the plan's before it is recorded) times its epochs (those it ran once
-    done, else ``epochs``, else the planned), an evaluation's simulated seconds over all
-    its rows (modalities, and the expert and no action where it has them)."""
+    as indexed, once it holds the plan's episodes; the plan's while it is not recorded or
+    still being recorded) times its epochs (those it ran once done, else ``epochs``, else
+    the planned), an evaluation's simulated seconds over all its rows (modalities, and
+    the expert and no action where it has them)."""
     argv = step.argv
     if step.kind == "train":
         data = Path(argv[argv.index("--data") + 1])
-        frames = (sum(e.get("frames", 0) for e in DatasetIndex(data).episodes())
-                  if (data / "index.json").exists() else
+        episodes = DatasetIndex(data).episodes() if (data / "index.json").exists() else []
+        frames = (sum(e.get("frames", 0) for e in episodes)
+                  if len(episodes) >= PLAN_RECORDINGS[(step.task, step.rate)][1] else
                   planned_frames(step.task, step.rate))
         record = training_record(step)
         if record is not None:
