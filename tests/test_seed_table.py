@@ -134,3 +134,18 @@ def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
     assert cell["per_run"]["s0"]["diff"] == pytest.approx(2 / 3)
     assert cell["per_run"]["s1"]["diff"] == pytest.approx(1 / 3)
     assert cell["reading"] == "rgb@fr helps"
+
+
+def test_a_mean_that_sums_to_zero_prints_plus_zero():
+    """Seeds at -5, +5 and 0 points average to -1e-17 in floating point; the printed table
+    says +0.0 there, as the study's report does (tools/studyio.py points)."""
+    cell = {"per_run": {"s0": {"diff": -0.05}, "s1": {"diff": 0.05}, "s2": {"diff": 0.0}},
+            "mean_a": 0.9, "mean_b": 0.9, "mean_diff": -1e-17, "ahead": 1, "behind": 1,
+            "episodes": {"ci95": [-0.05, 0.05], "p_sign": 1.0}, "reading": "no clear difference"}
+    table = {"a": "rgb+event", "b": "rgb+diff", "runs": ["s0", "s1", "s2"], "metric": "m",
+             "rule": {"min_diff_points": 10, "min_ahead": 3}, "cells": {"x/y": cell},
+             "left_out": []}
+    with tool_module("studies/seed_table") as tool:
+        row = tool.markdown(table).splitlines()[-1]
+    assert row == ("| x/y | -5.0 | +5.0 | +0.0 | 90.0 | 90.0 | +0.0 | 1 / 1 | [-5.0, +5.0], 1 "
+                   "| no clear difference |")

@@ -98,13 +98,19 @@ def best_losses(train_dir: Path) -> dict:
             for p in sweep["points"]}
 
 
+def points(share: float) -> str:
+    """A difference of shares in signed percentage points, one decimal; a mean that sums
+    to zero in floating point (-1e-17) reads +0.0, not -0.0."""
+    return f"{round(100 * share, 1) + 0.0:+.1f}"
+
+
 def paired_text(vs: dict | None) -> str:
     """A paired comparison as a table cell: "+2.5, p 0.04" (points), "p < 0.01" below
     that, "-" when no episode pairs."""
     if not vs or not vs["n"]:
         return "-"
     p = vs["p_sign"]
-    return f"{100 * vs['mean_diff']:+.1f}, " + ("p < 0.01" if p < 0.01 else f"p {p:.2f}")
+    return f"{points(vs['mean_diff'])}, " + ("p < 0.01" if p < 0.01 else f"p {p:.2f}")
 
 
 def loss_table(rows: dict, first_column: str) -> list[str]:

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.metrics import paired_comparison  # noqa: E402
-from tools.studyio import METRICS  # noqa: E402
+from tools.studyio import METRICS, points  # noqa: E402
 
 
 def read_results(path: Path) -> dict:
@@ -109,8 +109,8 @@ def markdown(comparison: dict, names: tuple[str, str]) -> str:
                     continue
                 r = row[metric]
                 lines.append(f"| {cell} | {100 * r['a']:.1f} | {100 * r['b']:.1f} | "
-                             f"{100 * r['mean_diff']:+.1f} | [{100 * r['ci95'][0]:+.1f}, "
-                             f"{100 * r['ci95'][1]:+.1f}] | {r['wins']} / {r['losses']} / "
+                             f"{points(r['mean_diff'])} | [{points(r['ci95'][0])}, "
+                             f"{points(r['ci95'][1])}] | {r['wins']} / {r['losses']} / "
                              f"{r['ties']} | {r['p_sign']:.3g} |")
             lines.append("")
     if comparison["unpaired"]:

@@ -39,7 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tools.studies.seed_table import _by_key, _scored, load_runs, seed_table  # noqa: E402
+from tools.studies.seed_table import _by_key, load_runs, scored_pairs, seed_table  # noqa: E402
+from tools.studyio import points  # noqa: E402
 
 
 def paired_outcomes(runs: dict[str, dict], a: str, b: str, metric: str,
@@ -50,10 +51,8 @@ def paired_outcomes(runs: dict[str, dict], a: str, b: str, metric: str,
     for res in runs.values():
         ea, eb = _by_key(res, a), _by_key(res, b)
         for cell in cells:
-            cond, scen = cell.split("/")
-            pairs = [(_scored(ea, k, metric), _scored(eb, k, metric))
-                     for k in sorted(ea) if k[:2] == (cond, scen)]
-            out[cell].append(np.array([p for p in pairs if None not in p], float)
+            keys = sorted(k for k in ea if f"{k[0]}/{k[1]}" == cell)
+            out[cell].append(np.array(scored_pairs(ea, eb, keys, metric), float)
                              .reshape(-1, 2))
     return out
 
@@ -112,7 +111,7 @@ def markdown(name: str, result: dict) -> str:
              "| P(hurts) under the null | p, as large |", "|---|---|---|---|---|---|---|"]
     for cell, c in result["cells"].items():
         p = "-" if c["p_as_large"] is None else f"{c['p_as_large']:.4f}"
-        lines.append(f"| {cell} | {round(c['effect_points'], 1) + 0.0:+.1f} | {c['reading']} "
+        lines.append(f"| {cell} | {points(c['effect_points'] / 100)} | {c['reading']} "
                      f"| {', '.join(map(str, c['episodes_per_run']))} | {c['p_helps']:.4f} "
                      f"| {c['p_hurts']:.4f} | {p} |")
     lines += ["", f"verdicts: {result['verdicts_seen']} seen in {len(result['cells'])} cells; "

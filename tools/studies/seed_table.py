@@ -37,13 +37,20 @@ sys.path.insert(0, str(ROOT))
 
 from sebvs.metrics import paired_comparison  # noqa: E402
 from tools.studies.compare_evals import TASK_METRICS, _by_key, read_results  # noqa: E402
-from tools.studyio import METRICS  # noqa: E402
+from tools.studyio import METRICS, points  # noqa: E402
 
 
 def _scored(episodes: dict, key, metric: str) -> float | None:
     e = episodes.get(key)
     v = None if e is None else e["metrics"].get(metric)
     return None if v is None else float(v)
+
+
+def scored_pairs(ea: dict, eb: dict, keys, metric: str) -> list[tuple[float, float]]:
+    """(A's, B's) outcome of each of ``keys`` that both scored, in their order: the
+    episodes a run's difference in a cell is taken over."""
+    pairs = [(_scored(ea, k, metric), _scored(eb, k, metric)) for k in keys]
+    return [(x, y) for x, y in pairs if x is not None and y is not None]
 
 
 def tagged(results: dict, tag: str) -> dict:
@@ -133,11 +140,9 @@ def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
         keys = sorted({k for ea, eb in by_run.values() for k in ea if k[:2] == (cond, scen)})
         per_run, avg_a, avg_b = {}, [], []
         for name, (ea, eb) in by_run.items():
-            both = [k for k in keys if _scored(ea, k, metric) is not None
-                    and _scored(eb, k, metric) is not None]
-            if both:
-                ma = statistics.fmean(_scored(ea, k, metric) for k in both)
-                mb = statistics.fmean(_scored(eb, k, metric) for k in both)
+            if both := scored_pairs(ea, eb, keys, metric):
+                ma = statistics.fmean(x for x, _ in both)
+                mb = statistics.fmean(y for _, y in both)
                 per_run[name] = {"a": ma, "b": mb, "diff": ma - mb, "n": len(both)}
         for k in keys:      # episodes every run scored on both sides
             xs = [(_scored(ea, k, metric), _scored(eb, k, metric)) for ea, eb in by_run.values()]
@@ -175,11 +180,11 @@ def markdown(table: dict) -> str:
              "|---|" + "---|" * (len(runs) + 6)]
     for cell, r in table["cells"].items():
         e = r["episodes"]
-        lines.append(f"| {cell} | " + " | ".join(f"{100 * r['per_run'][n]['diff']:+.1f}"
+        lines.append(f"| {cell} | " + " | ".join(points(r['per_run'][n]['diff'])
                                                  for n in runs) +
                      f" | {100 * r['mean_a']:.1f} | {100 * r['mean_b']:.1f} | "
-                     f"{100 * r['mean_diff']:+.1f} | {r['ahead']} / {r['behind']} | "
-                     f"[{100 * e['ci95'][0]:+.1f}, {100 * e['ci95'][1]:+.1f}], "
+                     f"{points(r['mean_diff'])} | {r['ahead']} / {r['behind']} | "
+                     f"[{points(e['ci95'][0])}, {points(e['ci95'][1])}], "
                      f"{e['p_sign']:.3g} | {r['reading']} |")
     if table["left_out"]:
         lines += ["", "Not scored by every run: " + ", ".join(table["left_out"])]

@@ -44,8 +44,9 @@ sys.path.insert(0, str(ROOT))
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
                                         PLAN_SEEDS, READ_METRIC, READ_RULE, READINGS,
-                                        eval_dir,
-                                        ledger_machines, plan_steps, reading_path)
+                                        eval_dir, ledger_machines, plan_steps,
+                                        reading_path)
+from tools.studyio import points  # noqa: E402
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
@@ -111,12 +112,6 @@ def reading_cell(table: dict | None, cell: str) -> tuple[str, str | None]:
         return "not yet run", None
     found = verdict(r["reading"])
     return f"{effect_text(r)}, {r['ahead']}/{r['behind']}, **{found}**", found
-
-
-def points(share: float) -> str:
-    """A difference of shares in signed percentage points, one decimal; a mean that sums
-    to zero in floating point (-1e-17) reads +0.0, not -0.0."""
-    return f"{round(100 * share, 1) + 0.0:+.1f}"
 
 
 def effect_text(r: dict) -> str:
