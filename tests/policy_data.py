@@ -54,7 +54,8 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, va
 
 def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, height: int = 32,
                  width: int = 32, seed: int = 0, task: str = "nav",
-                 target: str = "position", event_bins: int = 1) -> Path:
+                 target: str = "position", event_bins: int = 1,
+                 compression: str = "none") -> Path:
     """Write ``episodes`` episode files and index.json under ``root``.
 
     target "position": nav [v, w] from the square's centre (learnt only after a few hundred
@@ -85,7 +86,7 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
                  "event_representation": "counts" if event_bins == 1 else "histogram",
                  "event_sensor": [width // 2, height // 2]}   # frames: the sensor upsampled
         path = index.path_for(index.next_episode_number())
-        with EpisodeWriter(path, task, attrs, compression="none") as w:
+        with EpisodeWriter(path, task, attrs, compression=compression) as w:
             for t in range(frames):
                 w.append(rgb=rgb[t], event_frame=events[t], t_sim=t / 30.0, tick=t,
                          **{"action" if task == "nav" else "pose": targets[t]})
@@ -104,4 +105,28 @@ def copy_without(root: str | Path, out: str | Path, file: str) -> Path:
     index = json.loads((out / "index.json").read_text())
     index["episodes"] = [e for e in index["episodes"] if e["file"] != file]
     (out / "index.json").write_text(json.dumps(index))
+    return out
+
+
+def recorded_again(root: str | Path, out: str | Path, tick_offset: int = 100) -> Path:
+    """A copy of the dataset at ``root`` in ``out`` as a second run of the same recording
+    makes it: the same frames, events and targets, other hop latencies (measured on the wall
+    clock) and ticks counted from another run's start, so other files and another index."""
+    import shutil
+
+    import h5py
+
+    from sebvs.data.index import DatasetIndex, make_entry
+    out = Path(out)
+    shutil.copytree(root, out)
+    old = DatasetIndex(out)
+    task, episodes = old.data.get("task"), old.episodes()
+    (out / "index.json").unlink()
+    index = DatasetIndex(out, task)
+    for k, e in enumerate(episodes):
+        with h5py.File(out / e["file"], "r+") as f:
+            f["tick"][...] = f["tick"][()] + tick_offset
+            f.create_dataset("latency/sim|camera", data=np.full(f["tick"].shape, 100.0 + k,
+                                                                np.float32))
+        index.add(make_entry(out / e["file"]))
     return out

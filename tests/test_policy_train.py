@@ -357,3 +357,68 @@ def test_arm_yaw_is_encoded_continuously_across_the_cube_fold():
     assert torch.allclose(enc[:, 4], torch.full((4,), 0.2))         # 0.01 rad of pitch = 0.2
     torch.testing.assert_close(torch.atan2(enc[:, 6], enc[:, 5]) / 4, poses[:, 5],
                                atol=1e-5, rtol=0)
+
+
+def test_the_content_digest_sees_what_a_training_reads_and_not_the_wall_clock(tmp_path):
+    """A recording made again (other latencies, ticks from another run's start, so other
+    files) has the digest of the first; a changed pixel changes it for the modalities that
+    read pixels only; compressed chunks are hashed as stored."""
+    import h5py
+
+    from sebvs.policy.dataset import content_digest, dataset_hash
+    from tests.policy_data import recorded_again
+    first = make_dataset(tmp_path / "a", episodes=3, frames=8, compression="lzf")
+    again = recorded_again(first, tmp_path / "b")
+    eps_a, eps_b = load_index(first), load_index(again)
+    assert dataset_hash(first, eps_a) != dataset_hash(again, eps_b)
+    for modality in ("rgb", "event", "rgb+event", "rgb+diff"):
+        assert content_digest(first, eps_a, modality) == content_digest(again, eps_b, modality)
+    before = {m: content_digest(again, eps_b, m) for m in ("rgb", "event", "rgb+diff")}
+    with h5py.File(again / eps_b[1]["file"], "r+") as f:
+        f["rgb"][3, 5, 5, 0] ^= 1
+    after = {m: content_digest(again, eps_b, m) for m in before}
+    assert after["rgb"] != before["rgb"] and after["rgb+diff"] != before["rgb+diff"]
+    assert after["event"] == before["event"]
+    # the episodes' order and membership are part of what is read
+    assert content_digest(first, eps_a[:2], "rgb") != content_digest(first, eps_a, "rgb")
+    assert content_digest(first, eps_a[::-1], "rgb") != content_digest(first, eps_a, "rgb")
+
+
+def test_a_training_stopped_on_one_recording_resumes_on_the_same_one_made_again(gain_data,
+                                                                                tmp_path):
+    """The state a stopped session left continues on a new checkout's recording, made again
+    from the same commands (other files, the same content), to the weights of a training
+    that never stopped; on a recording whose content differs it starts again."""
+    import h5py
+    import shutil
+
+    from tests.policy_data import recorded_again
+    kw = dict(epochs=3, batch=8, max_frames=48, seed=5, patience=10, progress=False,
+              norm=Normalisation(size=32))
+    train(gain_data, tmp_path / "whole", "nav", ["rgb+diff"], log=lambda s: None, **kw)
+
+    def stop_in_epoch_2(line):
+        if line.startswith("  epoch 2:"):
+            raise StopHere
+    with pytest.raises(StopHere):
+        train(gain_data, tmp_path / "cut", "nav", ["rgb+diff"], log=stop_in_epoch_2, **kw)
+    state = tmp_path / "cut" / "nav-rgb+diff.resume.pt"
+    shutil.copy(state, tmp_path / "kept.resume.pt")
+    again = recorded_again(gain_data, tmp_path / "again")
+    said = []
+    train(again, tmp_path / "cut", "nav", ["rgb+diff"], log=said.append, **kw)
+    assert "  resuming after epoch 1 (nav-rgb+diff.resume.pt)" in said
+    a, b = (torch.load(tmp_path / d / "nav-rgb+diff.pt", weights_only=True)
+            for d in ("whole", "cut"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+    other = recorded_again(gain_data, tmp_path / "other")
+    first = load_index(other)[0]["file"]
+    with h5py.File(other / first, "r+") as f:
+        f["action"][0, 0] += 0.5
+    (tmp_path / "cut2").mkdir()
+    shutil.copy(tmp_path / "kept.resume.pt", tmp_path / "cut2" / "nav-rgb+diff.resume.pt")
+    said = []
+    train(other, tmp_path / "cut2", "nav", ["rgb+diff"], log=said.append, **kw)
+    assert "  nav-rgb+diff.resume.pt: made by other settings or data; training from the " \
+           "start" in said

@@ -67,6 +67,55 @@ def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
     return h.hexdigest()
 
 
+def _stored_bytes(h: "hashlib._Hash", stream) -> None:
+    """Feed an HDF5 dataset to ``h`` as stored: its shape and type, then each chunk's bytes
+    as written (compressed, undecoded: hashing them costs a read, not a decode), or the
+    values of an unchunked one."""
+    h.update(f"{stream.name}:{stream.shape}:{stream.dtype.str}\n".encode())
+    if stream.chunks is None:
+        h.update(np.ascontiguousarray(stream[()]).tobytes())
+        return
+    for i in range(stream.id.get_num_chunks()):
+        offset = stream.id.get_chunk_info(i).chunk_offset
+        mask, data = stream.id.read_direct_chunk(offset)
+        h.update(f"{offset}:{mask}:{len(data)}\n".encode())
+        h.update(data)
+
+
+def content_digest(root: str | Path, episodes: list[dict], modality: str) -> str:
+    """sha256 over what a training of ``modality`` reads of the episodes, in their order:
+    each episode's name, the image streams the modality takes (``rgb``, ``events/frame``)
+    as stored, its targets, and its ticks counted from its first.
+
+    Unlike `dataset_hash`, it does not see what a recording measures on the wall clock
+    (hop latencies, and so the index's per-file sha256) or counts from the start of the run
+    that recorded it (``tick``), so the same recording made again (the same topology, seed
+    and episodes; docs/scale.md) has the same digest, and a changed pixel, event, target or
+    episode does not. Two equal digests mean equal training inputs; the converse needs the
+    same compression (the chunks are hashed as stored, undecoded). It reads the stored
+    bytes once (seconds for gigabytes; nothing is decoded but the small unchunked arrays)."""
+    check_modality(modality)
+    streams = MODALITY_INPUTS[modality]
+    root, h = Path(root), hashlib.sha256()
+    for e in episodes:
+        h.update(f"{e['file']}\n".encode())
+        ep = open_episode(root / e["file"])
+        try:
+            if {"rgb", "rgb_prev"} & set(streams):
+                _stored_bytes(h, ep.rgb)
+            if "events" in streams:
+                if ep.event_frame is None:
+                    raise ValueError(f"{ep.path}: no events/frame, needed by modality "
+                                     f"{modality!r}")
+                _stored_bytes(h, ep.event_frame)
+            _stored_bytes(h, ep.target)
+            tick = np.asarray(ep.tick[()], np.int64)
+            h.update((tick - tick[:1]).tobytes())
+        finally:
+            ep.release()
+    return h.hexdigest()
+
+
 def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
     """What a dataset's event frames are, from its first episode: {"representation":
     "counts" | "histogram", "bins": K time bins per polarity, "window_s": the accumulator's

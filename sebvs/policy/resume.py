@@ -7,6 +7,11 @@ early-stopping bookkeeping (the best weights so far and the epochs since). It is
 atomically after every epoch, read only when it was made by the same settings on the same
 data (its fingerprint), and removed once the checkpoint is written. It holds tensors and
 plain values only, read with ``torch.load(..., weights_only=True)``.
+
+"The same data" is the content of what the training reads (`dataset.content_digest`), not
+the files: a dataset recorded again from the same commands, as a new checkout must (the
+recordings are not kept), continues the state that a stopped session left (version 2; a
+version-1 file named the files' hash, and is not continued).
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ import os
 from dataclasses import asdict
 from pathlib import Path
 
-RESUME_VERSION = 1
+RESUME_VERSION = 2
 # settings that change how long the epochs take but not the weights (tested: the loader
 # workers and the frames cache leave every weight bit for bit the same)
 NOT_IN_FINGERPRINT = ("num_workers", "cache")
@@ -28,11 +33,12 @@ def resume_path(out: str | Path, task: str, modality: str) -> Path:
     return Path(out) / f"{task}-{modality}.resume.pt"
 
 
-def fingerprint(settings, modality: str, data_hash: str) -> str:
-    """What must match for a saved state to continue this training."""
+def fingerprint(settings, modality: str, content: str) -> str:
+    """What must match for a saved state to continue this training: the settings that
+    decide the weights, the modality and the content digest of the data it reads."""
     fields = {k: v for k, v in asdict(settings).items() if k not in NOT_IN_FINGERPRINT
               and not (k in ADDED_SETTINGS and v == ADDED_SETTINGS[k])}
-    return json.dumps({"version": RESUME_VERSION, "modality": modality, "data": data_hash,
+    return json.dumps({"version": RESUME_VERSION, "modality": modality, "data": content,
                        "settings": fields}, sort_keys=True, default=str)
 
 

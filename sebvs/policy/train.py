@@ -22,7 +22,8 @@ from pathlib import Path
 
 from .checkpoint import model_config, save_checkpoint
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, available_memory,
-                      dataset_hash, event_frames_of, load_index, split_episodes)
+                      content_digest, dataset_hash, event_frames_of, load_index,
+                      split_episodes)
 from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
                      check_modality)
 from .resume import fingerprint, load_state, resume_path, save_state
@@ -215,7 +216,7 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         rows, best, best_state, bad = [], math.inf, None, 0
         data_hash = dataset_hash(data, episodes)
         state_file = resume_path(out, s.task, modality)
-        key = fingerprint(s, modality, data_hash)
+        key = fingerprint(s, modality, content_digest(data, episodes, modality))
         first, seconds_before, resumed = 1, 0.0, []
         state = load_state(state_file, key, log)
         if state is not None:
