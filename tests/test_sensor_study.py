@@ -432,6 +432,63 @@ def test_commit_keeps_a_finished_steps_outputs_and_nothing_else(tmp_path, monkey
         assert said and "index.lock" in said
 
 
+def test_a_stop_commits_the_ledger_and_the_trainings_resume_states(tmp_path, monkeypatch):
+    """A new checkout lacks what is not committed: at a stop, the ledger and the resume
+    states of the trainings in flight are committed (ignored files, by force), and a state
+    whose training finished since is removed with the training's own commit."""
+    import subprocess
+    with tool_module("studies/sensor_study") as study:
+        repo = tmp_path / "repo"
+        repo.mkdir()
+
+        def git(*args):
+            return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True,
+                                  text=True).stdout
+        git("init", "-q")
+        git("config", "user.email", "t@example.org")
+        git("config", "user.name", "t")
+        (repo / "README.md").write_text("x\n")
+        git("add", "README.md")
+        git("commit", "-qm", "start")
+        monkeypatch.setattr(study, "ROOT", repo)
+        out = repo / "studies" / "sensors"
+        out.mkdir(parents=True)
+        (out / ".gitignore").write_text((study.STUDY_DIR / ".gitignore").read_text())
+        trainings = [s for s in study.plan_steps(out, 2, {"arm30"}) if s.kind == "train"]
+        a, b = trainings[0], trainings[3]            # seed 0's and another seed's
+        states = [s.done.with_name(s.done.stem + ".resume.pt") for s in (a, b)]
+        for state in states:
+            state.parent.mkdir(parents=True, exist_ok=True)
+            state.write_bytes(b"epoch 3")
+        for step in (a, b):
+            study.append_ledger(out / study.LEDGER, step, 0.0, 600.0, -15)
+        assert study.commit_at_stop(out) is None
+        kept = git("show", "--name-only", "--format=%s", "HEAD").split("\n")
+        assert kept[0].startswith("study: stopped; the ledger and the resume states")
+        assert sorted(filter(None, kept[1:])) == sorted(
+            str(p.relative_to(repo)) for p in (out / study.LEDGER, *states))
+        # nothing new since: no commit
+        head = git("rev-parse", "HEAD")
+        assert study.commit_at_stop(out) is None and git("rev-parse", "HEAD") == head
+        # a later epoch is kept at the next stop
+        states[1].write_bytes(b"epoch 4")
+        assert study.commit_at_stop(out) is None
+        assert git("show", f"HEAD:{states[1].relative_to(repo)}") == "epoch 4"
+        # a finished training: its checkpoint in, its state out, with its own commit
+        states[0].unlink()
+        a.done.write_bytes(b"w")
+        study.append_ledger(out / study.LEDGER, a, 0.0, 900.0, 0)
+        assert study.commit_outputs(a, out) is None
+        tracked = git("ls-files", "studies").split()
+        assert str(a.done.relative_to(repo)) in tracked
+        assert str(states[0].relative_to(repo)) not in tracked
+        assert str(states[1].relative_to(repo)) in tracked
+        # a state committed and gone without its training's commit is removed at a stop
+        states[1].unlink()
+        assert study.commit_at_stop(out) is None
+        assert str(states[1].relative_to(repo)) not in git("ls-files", "studies").split()
+
+
 def test_run_commit_keeps_each_step_that_finishes_and_says_when_it_cannot(tmp_path, monkeypatch,
                                                                             capsys):
     with tool_module("studies/sensor_study") as study:
@@ -520,6 +577,9 @@ def test_an_evaluation_stopped_on_another_machine_starts_again_here(tmp_path, mo
         ledger = tmp_path / study.LEDGER
         mesa = "llvmpipe (LLVM 15.0.6, 256 bits), 4.5 (Compatibility Profile) Mesa 22.3.6"
         monkeypatch.setattr(study, "gl_stack", lambda: mesa)
+        # this machine, whatever the one running the test is
+        monkeypatch.setattr(study, "machine", lambda: "AMD EPYC (family 25, model 17), "
+                                                      "avx512f, 2 CPUs")
         evals = [s for s in study.plan_steps(tmp_path, 2, {"arm10"}) if s.kind == "eval"]
         step, other_step = evals[0], evals[1]
         finished = step.done.parent / "episodes" / "rgb__nominal_physical.jsonl"

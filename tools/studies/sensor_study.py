@@ -45,7 +45,9 @@ appends a line to OUT/steps.jsonl (its
 label, start, seconds, exit code, CPU and GL stack; `status` times the steps from it);
 with --commit, each step that finishes is committed at once, its outputs and that line,
 so that a study spread over sessions survives a new checkout: what it needs again is
-then only the datasets of the trainings still to run. The driver's log, OUT/log.txt
+then only the datasets of the trainings still to run. A stop (SIGTERM or Ctrl-C) with
+--commit commits the ledger and the trainings' resume states, which go on over those
+datasets made again (their content is the same: sebvs/policy/resume.py). The driver's log, OUT/log.txt
 (each step's start and exit), and each step's own output, OUT/logs/<step>.txt, are not
 tracked.
 """
@@ -425,21 +427,48 @@ def commit_outputs(step: Step, out: Path, attempts: int = 10) -> str | None:
     """Commit the step's outputs and the ledger (only those paths, whatever else is staged);
     None on success, else what git said. Retried while another git command holds the
     index lock."""
-    paths = [str(p.relative_to(ROOT)) for p in [*outputs_of(step), out / LEDGER]
-             if p.exists()]
-    if not paths:
+    paths = [p for p in [*outputs_of(step), out / LEDGER] if p.exists()]
+    return _commit(paths, f"study: {step.label} done; its outputs kept so that a new "
+                          f"checkout resumes after it", attempts)
+
+
+def resume_states(out: Path) -> list[Path]:
+    """The trainings' resume states under OUT that a stop keeps: those on disk, and those
+    committed earlier and gone since (their training finished), whose removal is kept."""
+    on_disk = set(out.glob("checkpoints/**/*.resume.pt"))
+    tracked = _git("ls-files", "-z", "--", str(out.relative_to(ROOT) / "checkpoints"))
+    gone = {ROOT / name for name in tracked.stdout.split("\0")
+            if name.endswith(".resume.pt")} - on_disk
+    return sorted(on_disk | gone)
+
+
+def commit_at_stop(out: Path, attempts: int = 10) -> str | None:
+    """At a stop with --commit: commit the ledger (the stopped steps' lines) and the
+    resume states of the trainings in flight, so that a new checkout, which must record
+    their dataset again, continues each one from its last finished epoch (a state goes on
+    where the recording made again has the same content: sebvs/policy/resume.py) instead
+    of from nothing. The states are ignored files, added by force; a few MB each."""
+    paths = [p for p in (out / LEDGER,) if p.exists()] + resume_states(out)
+    return _commit(paths, "study: stopped; the ledger and the resume states of the trainings in "
+                   "flight kept, so that a new checkout continues them", attempts, force=True)
+
+
+def _commit(paths: list[Path], message: str, attempts: int, force: bool = False
+            ) -> str | None:
+    """Stage and commit only ``paths`` (new, changed or removed; ``force``: ignored ones
+    too); None when done or when nothing changed, else what git said."""
+    names = [str(p.relative_to(ROOT)) for p in paths]
+    if not names:
         return None
     said = ""
     for attempt in range(attempts):
-        run = _git("add", "--", *paths)
+        run = _git("add", "--all", *(["--force"] if force else []), "--", *names)
         if run.returncode == 0:
-            run = _git("diff", "--cached", "--quiet", "--", *paths)   # 1: something to commit
+            run = _git("diff", "--cached", "--quiet", "--", *names)   # 1: something to commit
             if run.returncode == 0:
                 return None                                          # nothing new to keep
             if run.returncode == 1:
-                run = _git("commit", "--quiet", "-m",
-                           f"study: {step.label} done; its outputs kept so that a new "
-                           f"checkout resumes after it", "--only", "--", *paths)
+                run = _git("commit", "--quiet", "-m", message, "--only", "--", *names)
                 if run.returncode == 0:
                     return None
         said = (run.stderr or run.stdout).strip()
@@ -762,6 +791,9 @@ def main(argv: list[str] | None = None) -> int:
                                 commit=args.out if args.commit else None):
                 print(f"sensor study: stopped; the step's output under {log.parent / 'logs'} "
                       f"says why", file=sys.stderr)
+                if args.commit and STOPPING.is_set() and (said := commit_at_stop(args.out)):
+                    print(f"sensor study: the ledger and resume states are not committed "
+                          f"({said}); commit them by hand", file=sys.stderr)
                 return 1
     return 0
 
