@@ -74,6 +74,15 @@ class StopHere(Exception):
     """Stands for a killed training: raised from the log line of an epoch."""
 
 
+def stop_in_epoch(n: int):
+    """A training's log that stops it at epoch n's line (as a kill in that epoch would:
+    the state file then holds epoch n - 1)."""
+    def log(line):
+        if line.startswith(f"  epoch {n}:"):
+            raise StopHere
+    return log
+
+
 def test_a_stopped_training_resumes_to_the_same_weights(gain_data, tmp_path):
     """Stopped in its third epoch, a training goes on after epoch 2 from its state file and
     ends bit for bit where one that never stopped ends: weights, losses and schedule."""
@@ -81,10 +90,7 @@ def test_a_stopped_training_resumes_to_the_same_weights(gain_data, tmp_path):
               norm=Normalisation(size=32),
               plateau={"factor": 0.5, "patience": 0, "threshold": 1.0, "threshold_mode": "abs"})
     train(gain_data, tmp_path / "whole", "nav", ["rgb+event"], log=lambda s: None, **kw)
-
-    def stop_in_epoch_3(line):
-        if line.startswith("  epoch 3:"):
-            raise StopHere
+    stop_in_epoch_3 = stop_in_epoch(3)
     with pytest.raises(StopHere):
         train(gain_data, tmp_path / "cut", "nav", ["rgb+event"], log=stop_in_epoch_3, **kw)
     state = tmp_path / "cut" / "nav-rgb+event.resume.pt"
@@ -396,12 +402,8 @@ def test_a_training_stopped_on_one_recording_resumes_on_the_same_one_made_again(
     kw = dict(epochs=3, batch=8, max_frames=48, seed=5, patience=10, progress=False,
               norm=Normalisation(size=32))
     train(gain_data, tmp_path / "whole", "nav", ["rgb+diff"], log=lambda s: None, **kw)
-
-    def stop_in_epoch_2(line):
-        if line.startswith("  epoch 2:"):
-            raise StopHere
     with pytest.raises(StopHere):
-        train(gain_data, tmp_path / "cut", "nav", ["rgb+diff"], log=stop_in_epoch_2, **kw)
+        train(gain_data, tmp_path / "cut", "nav", ["rgb+diff"], log=stop_in_epoch(2), **kw)
     state = tmp_path / "cut" / "nav-rgb+diff.resume.pt"
     shutil.copy(state, tmp_path / "kept.resume.pt")
     again = recorded_again(gain_data, tmp_path / "again")

@@ -385,25 +385,32 @@ def test_ray_sends_the_recordings_and_evaluations_there_and_changes_nothing_else
             assert a.argv == b.argv == c.argv and a.done == b.done
 
 
-def test_commit_keeps_a_finished_steps_outputs_and_nothing_else(tmp_path, monkeypatch):
+def study_repo(tmp_path, monkeypatch, study):
+    """A git repository in tmp_path with one commit, the driver's ROOT pointed at it and
+    its study directory (OUT, with the real .gitignore); (repo, git(*args) -> stdout, OUT)."""
     import subprocess
-    with tool_module("studies/sensor_study") as study:
-        repo = tmp_path / "repo"
-        repo.mkdir()
+    repo = tmp_path / "repo"
+    repo.mkdir()
 
-        def git(*args):
-            return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True,
-                                  text=True).stdout
-        git("init", "-q")
-        git("config", "user.email", "t@example.org")
-        git("config", "user.name", "t")
-        (repo / "README.md").write_text("x\n")
-        git("add", "README.md")
-        git("commit", "-qm", "start")
-        monkeypatch.setattr(study, "ROOT", repo)
-        out = repo / "studies" / "sensors"
-        out.mkdir(parents=True)
-        (out / ".gitignore").write_text((study.STUDY_DIR / ".gitignore").read_text())
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True,
+                              text=True).stdout
+    git("init", "-q")
+    git("config", "user.email", "t@example.org")
+    git("config", "user.name", "t")
+    (repo / "README.md").write_text("x\n")
+    git("add", "README.md")
+    git("commit", "-qm", "start")
+    monkeypatch.setattr(study, "ROOT", repo)
+    out = repo / "studies" / "sensors"
+    out.mkdir(parents=True)
+    (out / ".gitignore").write_text((study.STUDY_DIR / ".gitignore").read_text())
+    return repo, git, out
+
+
+def test_commit_keeps_a_finished_steps_outputs_and_nothing_else(tmp_path, monkeypatch):
+    with tool_module("studies/sensor_study") as study:
+        repo, git, out = study_repo(tmp_path, monkeypatch, study)
         train = next(s for s in study.plan_steps(out, 2, {"nav10"}) if s.kind == "train")
         seed_dir = train.done.parent
         seed_dir.mkdir(parents=True)
@@ -436,24 +443,8 @@ def test_a_stop_commits_the_ledger_and_the_trainings_resume_states(tmp_path, mon
     """A new checkout lacks what is not committed: at a stop, the ledger and the resume
     states of the trainings in flight are committed (ignored files, by force), and a state
     whose training finished since is removed with the training's own commit."""
-    import subprocess
     with tool_module("studies/sensor_study") as study:
-        repo = tmp_path / "repo"
-        repo.mkdir()
-
-        def git(*args):
-            return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True,
-                                  text=True).stdout
-        git("init", "-q")
-        git("config", "user.email", "t@example.org")
-        git("config", "user.name", "t")
-        (repo / "README.md").write_text("x\n")
-        git("add", "README.md")
-        git("commit", "-qm", "start")
-        monkeypatch.setattr(study, "ROOT", repo)
-        out = repo / "studies" / "sensors"
-        out.mkdir(parents=True)
-        (out / ".gitignore").write_text((study.STUDY_DIR / ".gitignore").read_text())
+        repo, git, out = study_repo(tmp_path, monkeypatch, study)
         trainings = [s for s in study.plan_steps(out, 2, {"arm30"}) if s.kind == "train"]
         a, b = trainings[0], trainings[3]            # seed 0's and another seed's
         states = [s.done.with_name(s.done.stem + ".resume.pt") for s in (a, b)]
