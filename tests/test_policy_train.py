@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from sebvs.cli import main
+from sebvs.policy.checkpoint import checkpoints_in
 from sebvs.policy.dataset import EpisodeFrames, load_index, split_episodes
 from sebvs.policy.inputs import Normalisation
 from sebvs.policy.train import train
@@ -95,6 +96,7 @@ def test_a_stopped_training_resumes_to_the_same_weights(gain_data, tmp_path):
         train(gain_data, tmp_path / "cut", "nav", ["rgb+event"], log=stop_in_epoch_3, **kw)
     state = tmp_path / "cut" / "nav-rgb+event.resume.pt"
     assert state.exists() and not (tmp_path / "cut" / "nav-rgb+event.pt").exists()
+    assert checkpoints_in(tmp_path / "cut") == []          # a resume state is not a model
     said = []
     train(gain_data, tmp_path / "cut", "nav", ["rgb+event"], log=said.append, **kw)
     assert "  resuming after epoch 2 (nav-rgb+event.resume.pt)" in said
@@ -106,6 +108,7 @@ def test_a_stopped_training_resumes_to_the_same_weights(gain_data, tmp_path):
     assert rows[0] == rows[1] and ",5e-05" in rows[0]     # the schedule halved the lr twice
     cfg = json.loads((tmp_path / "cut" / "nav-rgb+event.json").read_text())
     assert cfg["training"]["resumed_after_epochs"] == [2] and not state.exists()
+    assert checkpoints_in(tmp_path / "cut") == [tmp_path / "cut" / "nav-rgb+event.pt"]
 
     # a state made by other settings is not continued
     with pytest.raises(StopHere):

@@ -162,21 +162,22 @@ def mean_baseline(train: str | Path, held: str | Path, task: str = "nav",
 
 
 def real_points(data: str | Path, checkpoints: str | Path) -> list[dict]:
-    """Every ``*.pt`` in `checkpoints` scored on its own validation episodes in `data`."""
+    """Every checkpoint in `checkpoints` (its ``*.pt`` but resume states) scored on its own
+    validation episodes in `data`."""
     import torch
 
-    from sebvs.policy.checkpoint import read_config
+    from sebvs.policy.checkpoint import checkpoints_in, read_config
     prev = torch.get_num_threads()
     torch.set_num_threads(1)     # as in synthetic_points: one thread, shared cores
     try:
-        return _real_points(data, checkpoints, read_config)
+        return _real_points(data, checkpoints_in(checkpoints), read_config)
     finally:
         torch.set_num_threads(prev)
 
 
-def _real_points(data, checkpoints, read_config) -> list[dict]:
+def _real_points(data, checkpoints: list[Path], read_config) -> list[dict]:
     points, runs = [], []
-    for pt in sorted(Path(checkpoints).glob("*.pt")):
+    for pt in checkpoints:
         cfg = read_config(pt)
         val = (cfg.get("dataset") or {}).get("val_episodes") or None
         if val and not all((Path(data) / v).exists() for v in val):

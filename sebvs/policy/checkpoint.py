@@ -25,6 +25,12 @@ def checkpoint_paths(out_dir: str | Path, task: str, modality: str) -> tuple[Pat
     return stem.with_suffix(".pt"), stem.with_suffix(".json")
 
 
+def checkpoints_in(directory: str | Path) -> list[Path]:
+    """The checkpoints in a directory, sorted: every ``*.pt`` but a stopped training's
+    resume state (``*.resume.pt``, sebvs/policy/resume.py), which is not a model."""
+    return sorted(p for p in Path(directory).glob("*.pt") if not p.name.endswith(".resume.pt"))
+
+
 def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
     """Write the state_dict and its config; returns the .pt path."""
     import torch

@@ -34,6 +34,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from sebvs.policy.checkpoint import checkpoints_in  # noqa: E402
 from sebvs.policy.inputs import MODALITIES, Normalisation, channels, model_input  # noqa: E402
 from sebvs.policy.model import ERP, count_parameters  # noqa: E402
 from sebvs.policy.train import check_stem  # noqa: E402
@@ -170,7 +171,7 @@ def main(argv=None) -> int:
     t_start = time.monotonic()
 
     shipped = []
-    for pt in sorted(Path(args.checkpoints).glob("*.pt")):
+    for pt in checkpoints_in(args.checkpoints):
         rows = bench_shipped(pt, args.graphs.split(","), 15 if args.quick else 60, args.idle_s)
         shipped += rows
         print(f"shipped {pt.name:>20}: " + "  ".join(
