@@ -47,9 +47,9 @@ with --commit, each step that finishes is committed at once, its outputs and tha
 so that a study spread over sessions survives a new checkout: what it needs again is
 then only the datasets of the trainings still to run. A stop (SIGTERM or Ctrl-C) with
 --commit commits the ledger and the trainings' resume states, which go on over those
-datasets made again (their content is the same: sebvs/policy/resume.py). The driver's log, OUT/log.txt
-(each step's start and exit), and each step's own output, OUT/logs/<step>.txt, are not
-tracked.
+datasets made again (their content is the same: sebvs/policy/resume.py). The driver's
+log, OUT/log.txt (each step's start and exit), and each step's own output,
+OUT/logs/<step>.txt, are not tracked.
 """
 from __future__ import annotations
 
@@ -449,8 +449,9 @@ def commit_at_stop(out: Path, attempts: int = 10) -> str | None:
     where the recording made again has the same content: sebvs/policy/resume.py) instead
     of from nothing. The states are ignored files, added by force; a few MB each."""
     paths = [p for p in (out / LEDGER,) if p.exists()] + resume_states(out)
-    return _commit(paths, "study: stopped; the ledger and the resume states of the trainings in "
-                   "flight kept, so that a new checkout continues them", attempts, force=True)
+    return _commit(paths, "study: stopped; the ledger and the resume states of the trainings "
+                          "in flight kept, so that a new checkout continues them", attempts,
+                   force=True)
 
 
 def _commit(paths: list[Path], message: str, attempts: int, force: bool = False
