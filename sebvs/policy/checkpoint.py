@@ -12,6 +12,7 @@ import pickle
 from pathlib import Path
 
 from .inputs import Normalisation, channel_names, channels, check_modality
+from .resume import RESUME_SUFFIX
 
 CONFIG_VERSION = 1
 
@@ -28,7 +29,7 @@ def checkpoint_paths(out_dir: str | Path, task: str, modality: str) -> tuple[Pat
 def checkpoints_in(directory: str | Path) -> list[Path]:
     """The checkpoints in a directory, sorted: every ``*.pt`` but a stopped training's
     resume state (``*.resume.pt``, sebvs/policy/resume.py), which is not a model."""
-    return sorted(p for p in Path(directory).glob("*.pt") if not p.name.endswith(".resume.pt"))
+    return sorted(p for p in Path(directory).glob("*.pt") if not p.name.endswith(RESUME_SUFFIX))
 
 
 def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:

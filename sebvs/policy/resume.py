@@ -21,6 +21,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 RESUME_VERSION = 2
+RESUME_SUFFIX = ".resume.pt"    # <task>-<modality> + this, beside the checkpoint it becomes
 # settings that change how long the epochs take but not the weights (tested: the loader
 # workers and the frames cache leave every weight bit for bit the same)
 NOT_IN_FINGERPRINT = ("num_workers", "cache")
@@ -30,7 +31,7 @@ ADDED_SETTINGS = {"zero_subnormals": False}
 
 
 def resume_path(out: str | Path, task: str, modality: str) -> Path:
-    return Path(out) / f"{task}-{modality}.resume.pt"
+    return Path(out) / f"{task}-{modality}{RESUME_SUFFIX}"
 
 
 def fingerprint(settings, modality: str, content: str) -> str:

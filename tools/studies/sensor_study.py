@@ -74,6 +74,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.data.index import DatasetIndex  # noqa: E402
+from sebvs.policy.resume import RESUME_SUFFIX  # noqa: E402
 
 PLAN_FILE = "docs/study_sensors_plan.md"
 STUDY_DIR = ROOT / "studies" / "sensors"        # tracked: see studies/sensors/README.md
@@ -435,10 +436,10 @@ def commit_outputs(step: Step, out: Path, attempts: int = 10) -> str | None:
 def resume_states(out: Path) -> list[Path]:
     """The trainings' resume states under OUT that a stop keeps: those on disk, and those
     committed earlier and gone since (their training finished), whose removal is kept."""
-    on_disk = set(out.glob("checkpoints/**/*.resume.pt"))
+    on_disk = set(out.glob(f"checkpoints/**/*{RESUME_SUFFIX}"))
     tracked = _git("ls-files", "-z", "--", str(out.relative_to(ROOT) / "checkpoints"))
     gone = {ROOT / name for name in tracked.stdout.split("\0")
-            if name.endswith(".resume.pt")} - on_disk
+            if name.endswith(RESUME_SUFFIX)} - on_disk
     return sorted(on_disk | gone)
 
 
