@@ -217,6 +217,31 @@ def test_status_shows_each_steps_time_and_estimates_the_rest(tmp_path, monkeypat
         assert "estimated wall time left: 0.6 h (trainings 2 at once)" in text   # 7 x 10 / 2
 
 
+def test_status_counts_only_the_epochs_a_resume_state_leaves(tmp_path, monkeypatch):
+    import torch
+    with tool_module("studies/sensor_study") as study:
+        fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100})
+        steps = [s for s in study.plan_steps(tmp_path, 2, {"nav10"}) if s.kind == "train"]
+        took = {}
+        for s in steps[:3]:                        # 10 planned epochs in 10 min each
+            s.done.parent.mkdir(parents=True, exist_ok=True)
+            s.done.write_bytes(b"")
+            took[s.label] = 600.0
+        stopped, torn = steps[3], steps[4]
+        state = stopped.done.with_name(stopped.done.stem + study.RESUME_SUFFIX)
+        state.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({"fingerprint": "x", "epoch": 5}, state)
+        torn_state = torn.done.with_name(torn.done.stem + study.RESUME_SUFFIX)
+        torn_state.parent.mkdir(parents=True, exist_ok=True)
+        torn_state.write_bytes(b"PK\x03\x04 half a file")
+        assert study.epochs_kept(stopped) == 5 and study.epochs_kept(torn) == 0
+        text = study.status_text(steps, ["train"], took)
+        assert (f"left: {stopped.label} (~5 min, from 3 done like it; 5 epochs kept in its "
+                f"resume state)") in text
+        assert f"left: {torn.label} (~10 min, from 3 done like it)\n" in text
+        assert "estimated wall time left: 0.5 h" in text       # (6 x 10 + 5) / 2 min
+
+
 def test_status_scales_estimates_by_the_work_of_each_step(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
         fake_datasets(study, tmp_path, monkeypatch, {"study_nav10": 100, "study_nav30": 300})

@@ -497,6 +497,23 @@ def training_record(step: Step) -> dict | None:
     return training
 
 
+def epochs_kept(step: Step) -> int:
+    """The epochs a stopped training's resume state holds (0 with none, or one that cannot
+    be read): a training that goes on from it has only the rest to run. Read as the
+    training reads it (weights_only); whether it matches the data is the training's to
+    decide when it starts."""
+    state_file = step.done.with_name(step.done.stem + RESUME_SUFFIX)
+    if step.kind != "train" or not state_file.exists():
+        return 0
+    import torch
+    try:
+        state = torch.load(state_file, weights_only=True)
+    except Exception:            # torn by a kill, or not a state: the training starts over
+        return 0
+    epoch = state.get("epoch") if isinstance(state, dict) else None
+    return epoch if isinstance(epoch, int) and epoch > 0 else 0
+
+
 def planned_frames(task: str, rate: int) -> int:
     """The labelled frames the plan's recording of a task and rate holds, before it exists
     (a new checkout has no datasets): episodes x (episode seconds x rate + 1), one per
@@ -570,7 +587,7 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     its own record (every
     resumed part, see training_record), which the log misses for a part stopped before
     the driver wrote exit lines; one left is sized by the epochs its task's done ones
-    ran. Trainings run ``parallel`` at once."""
+    ran, less those its resume state keeps. Trainings run ``parallel`` at once."""
     def group(step: Step) -> tuple:
         return step.kind, step.task, step.rate, step.group
 
@@ -584,11 +601,15 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
     took = {**took, **{s.label: float(r["seconds"]) for s, r in records}}
     shares = epoch_shares(records)
 
-    def expected_epochs(step: Step) -> float | None:
-        share = shares.get(step.argv[step.argv.index("--task") + 1])
-        return None if share is None else share * int(step.argv[step.argv.index("--epochs") + 1])
+    kept = {s.label: epochs_kept(s) for s in steps
+            if s.kind == "train" and "train" in kinds and not is_done(s)}
 
-    work = {s.label: step_work(s, expected_epochs(s) if s.kind == "train" else None)
+    def epochs_left(step: Step) -> float:
+        share = shares.get(step.argv[step.argv.index("--task") + 1], 1.0)
+        expected = share * int(step.argv[step.argv.index("--epochs") + 1])
+        return max(expected - kept.get(step.label, 0), 0.0)
+
+    work = {s.label: step_work(s, epochs_left(s) if s.kind == "train" else None)
             for s in steps if s.kind in kinds}                      # reads indexes once
 
     def rate(done: list[Step]) -> float | None:
@@ -622,6 +643,8 @@ def status_text(steps: list[Step], kinds: list[str], took: dict[str, float],
                 unknown += 1
             else:
                 total += guess / (parallel if kind == "train" else 1)
+            if kept.get(s.label):
+                how += f"; {kept[s.label]} epochs kept in its resume state"
             lines.append(f"        left: {s.label}" + (
                 f" ({about}{guess / 60:.0f} min, {how})" if guess is not None else ""))
     lines.append(f"estimated wall time left: {'at least ' if bounds else ''}"
