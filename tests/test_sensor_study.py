@@ -672,6 +672,41 @@ def test_the_report_names_the_cpu_and_gl_of_every_evaluation(tmp_path):
             "Evaluated on: no CPU recorded. Rendered with: no GL stack recorded (1 evaluation)."
 
 
+def test_the_report_names_the_recordings_a_readings_trainings_read(tmp_path):
+    with tool_module("studies/sensor_study") as study, \
+            tool_module("studies/sensor_report") as rep:
+        train = [s for s in study.plan_steps(tmp_path, 2, {"arm30"}) if s.kind == "train"]
+        first, again = "a" * 64, "b" * 64
+        for s in train:
+            s.done.parent.mkdir(parents=True, exist_ok=True)
+            s.done.write_bytes(b"")
+            early = "rgb+event seed 0" in s.label or "rgb+event seed 1" in s.label
+            s.done.with_suffix(".json").write_text(json.dumps(
+                {"dataset": {"hash": first if early else again}}))
+        found = rep.trained_from(tmp_path, "arm", 30)
+        assert found[first] == {"rgb+event": [0, 1]}
+        assert found[again] == {"rgb": [0], "event": [0], "rgb+diff": [0, 1, 2],
+                                "rgb+event": [2]}
+        assert rep.recordings_line("arm", 30, found) == (
+            "Trained on: 2 recordings of datasets/study_arm30 (their files differ; 8 "
+            "trainings): sha256 aaaaaaaaaaaa: rgb+event seeds 0, 1; sha256 bbbbbbbbbbbb: "
+            "event seed 0, rgb seed 0, rgb+diff seeds 0, 1, 2, rgb+event seed 2.")
+        train[0].done.with_suffix(".json").write_text("{not json")      # names none
+        train[1].done.unlink()                                          # not finished
+        found = rep.trained_from(tmp_path, "arm", 30)
+        assert sum(len(v) for by in found.values() for v in by.values()) == 7
+        assert "unknown" in found and "unknown: " in rep.recordings_line("arm", 30, found)
+        one = {again: {"rgb": [0]}}
+        assert rep.recordings_line("nav", 10, one) == (
+            "Trained on: one recording of datasets/study_nav10 (files sha256 bbbbbbbbbbbb; "
+            "1 training).")
+        text, data, _ = rep.report(tmp_path, unread_rows=True)
+        assert rep.recordings_line("arm", 30, found) in text
+        assert data["tasks"]["arm"]["recordings"][30] == found
+        text, data, _ = rep.report(tmp_path)          # not read: nor is its provenance shown
+        assert "Trained on" not in text and data["tasks"]["arm"]["recordings"][30] is None
+
+
 def test_a_training_is_sized_by_the_plans_frames_before_its_dataset_exists(tmp_path, monkeypatch):
     with tool_module("studies/sensor_study") as study:
         # the frames the study's four recordings held (docs/study_sensors_log.md)

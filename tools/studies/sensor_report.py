@@ -13,8 +13,9 @@ interval, how many seeds are ahead / behind, the rule's verdict), and beside it 
 plan's physics predicted and whether that held. Below it, per rate, the descriptive rows:
 each modality's mean (over its training seeds), the expert and no action, per cell, the
 cells in which the expert or no action played the same episodes (alike_cells: their
-figures repeat there, and the line says why), and the CPUs and GL stacks the evaluations
-ran on (the driver's ledger, OUT/steps.jsonl). A rate the plan has not read yet shows how
+figures repeat there, and the line says why), the recording (or recordings) its trainings
+read, and the CPUs and GL stacks the evaluations ran on (the driver's ledger,
+OUT/steps.jsonl). A rate the plan has not read yet shows how
 many of its evaluations are in, not their figures (--unread-rows shows those too).
 
 Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
@@ -285,6 +286,48 @@ def machines_line(found: dict[str, dict[str, list[str]]]) -> str:
             f"evaluation{'s' * (len(found) != 1)}).")
 
 
+def trained_from(out: Path, task: str, rate: int) -> dict[str, dict[str, list[int]]]:
+    """{the files' sha256 of the recording a training read: {modality: its training
+    seeds}}, from the JSON beside each of the plan's finished checkpoints of the task and
+    rate ("unknown" where that JSON names none). A dataset recorded again (a new checkout
+    must: the recordings are not kept) has other files, so a reading whose trainings read
+    more than one recording shows it here (docs/study_sensors_log.md says whether their
+    content differed)."""
+    found: dict[str, dict[str, list[int]]] = {}
+    for step in plan_steps(out, 1, {f"{task}{rate}"}):
+        if step.kind != "train" or not step.done.exists():
+            continue
+        try:
+            digest = json.loads(step.done.with_suffix(".json").read_text())["dataset"]["hash"]
+        except (OSError, ValueError, KeyError, TypeError):
+            digest = None
+        digest = digest if isinstance(digest, str) and digest else "unknown"
+        modality = step.argv[step.argv.index("--modality") + 1]
+        seed = int(step.argv[step.argv.index("--seed") + 1])
+        found.setdefault(digest, {}).setdefault(modality, []).append(seed)
+    return found
+
+
+def recordings_line(task: str, rate: int, found: dict[str, dict[str, list[int]]]) -> str:
+    """Which recording the reading's trainings read, in one sentence: one, or each of
+    several with the trainings that read it."""
+    def trainings(by_modality: dict[str, list[int]]) -> str:
+        return ", ".join(f"{m} seed{'s' * (len(seeds) > 1)} {', '.join(map(str, sorted(seeds)))}"
+                         for m, seeds in sorted(by_modality.items()))
+
+    def short(digest: str) -> str:
+        return digest if digest == "unknown" else f"sha256 {digest[:12]}"
+    n = sum(len(seeds) for by in found.values() for seeds in by.values())
+    where = f"datasets/study_{task}{rate}"
+    if len(found) == 1:
+        (digest, _), = found.items()
+        return (f"Trained on: one recording of {where} (files {short(digest)}; "
+                f"{n} training{'s' * (n != 1)}).")
+    parts = "; ".join(f"{short(d)}: {trainings(by)}" for d, by in sorted(found.items()))
+    return (f"Trained on: {len(found)} recordings of {where} (their files differ; "
+            f"{n} trainings): {parts}.")
+
+
 def rows_table(task: str, rate: int, means: dict[str, dict[str, float]],
                found: dict[str, int] | None = None) -> list[str]:
     """The descriptive table; a learned row's header says its seeds, and how many of the
@@ -341,7 +384,7 @@ def report(out: Path, unread_rows: bool = False) -> tuple[str, dict, bool]:
         for rate in RATES:
             if tables[rate] is None and not unread_rows:
                 have, planned = planned_evaluations(out, task, rate)
-                for key in ("rows", "seeds_found", "alike"):
+                for key in ("rows", "seeds_found", "alike", "recordings"):
                     data["tasks"][task].setdefault(key, {})[rate] = None
                 lines += [f"{task} at {rate} Hz: not read yet ({have} of its {planned} "
                           f"planned evaluations done); its rows appear with its reading.", ""]
@@ -356,6 +399,10 @@ def report(out: Path, unread_rows: bool = False) -> tuple[str, dict, bool]:
                 data["tasks"][task].setdefault("alike", {})[rate] = alike
                 if alike:
                     lines += [alike_line(alike), ""]
+                recordings = trained_from(out, task, rate)
+                data["tasks"][task].setdefault("recordings", {})[rate] = recordings
+                if recordings:
+                    lines += [recordings_line(task, rate, recordings), ""]
             found = eval_machines(out, task, rate)
             data["tasks"][task]["machines"][rate] = found
             if found:
