@@ -228,10 +228,14 @@ def test_status_counts_only_the_epochs_a_resume_state_leaves(tmp_path, monkeypat
             s.done.write_bytes(b"")
             took[s.label] = 600.0
         stopped, torn = steps[3], steps[4]
-        state = stopped.done.with_name(stopped.done.stem + study.RESUME_SUFFIX)
+
+        def state_of(step):
+            return study.resume_path(step.done.parent, "nav",
+                                     step.argv[step.argv.index("--modality") + 1])
+        state = state_of(stopped)
         state.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"fingerprint": "x", "epoch": 5}, state)
-        torn_state = torn.done.with_name(torn.done.stem + study.RESUME_SUFFIX)
+        torn_state = state_of(torn)
         torn_state.parent.mkdir(parents=True, exist_ok=True)
         torn_state.write_bytes(b"PK\x03\x04 half a file")
         assert study.epochs_kept(stopped) == 5 and study.epochs_kept(torn) == 0

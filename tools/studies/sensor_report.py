@@ -15,8 +15,8 @@ each modality's mean (over its training seeds), the expert and no action, per ce
 cells in which the expert or no action played the same episodes (alike_cells: their
 figures repeat there, and the line says why), the recording (or recordings) its trainings
 read, and the CPUs and GL stacks the evaluations ran on (the driver's ledger,
-OUT/steps.jsonl). A rate the plan has not read yet shows how
-many of its evaluations are in, not their figures (--unread-rows shows those too).
+OUT/steps.jsonl). A rate the plan has not read yet shows how many of its evaluations are
+in, not their figures (--unread-rows shows those too).
 
 Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
 JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What the physics

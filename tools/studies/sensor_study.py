@@ -74,7 +74,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.data.index import DatasetIndex  # noqa: E402
-from sebvs.policy.resume import RESUME_SUFFIX  # noqa: E402
+from sebvs.policy.resume import RESUME_SUFFIX, resume_path  # noqa: E402
 
 PLAN_FILE = "docs/study_sensors_plan.md"
 STUDY_DIR = ROOT / "studies" / "sensors"        # tracked: see studies/sensors/README.md
@@ -502,8 +502,11 @@ def epochs_kept(step: Step) -> int:
     be read): a training that goes on from it has only the rest to run. Read as the
     training reads it (weights_only); whether it matches the data is the training's to
     decide when it starts."""
-    state_file = step.done.with_name(step.done.stem + RESUME_SUFFIX)
-    if step.kind != "train" or not state_file.exists():
+    if step.kind != "train":
+        return 0
+    state_file = resume_path(step.done.parent, step.task,
+                             step.argv[step.argv.index("--modality") + 1])
+    if not state_file.exists():
         return 0
     import torch
     try:
