@@ -476,7 +476,8 @@ def test_a_stop_commits_the_ledger_and_the_trainings_resume_states(tmp_path, mon
         repo, git, out = study_repo(tmp_path, monkeypatch, study)
         trainings = [s for s in study.plan_steps(out, 2, {"arm30"}) if s.kind == "train"]
         a, b = trainings[0], trainings[3]            # seed 0's and another seed's
-        states = [s.done.with_name(s.done.stem + study.RESUME_SUFFIX) for s in (a, b)]
+        states = [study.resume_path(s.done.parent, s.task,
+                                    s.argv[s.argv.index("--modality") + 1]) for s in (a, b)]
         for state in states:
             state.parent.mkdir(parents=True, exist_ok=True)
             state.write_bytes(b"epoch 3")
