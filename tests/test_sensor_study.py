@@ -229,13 +229,10 @@ def test_status_counts_only_the_epochs_a_resume_state_leaves(tmp_path, monkeypat
             took[s.label] = 600.0
         stopped, torn = steps[3], steps[4]
 
-        def state_of(step):
-            return study.resume_path(step.done.parent, "nav",
-                                     step.argv[step.argv.index("--modality") + 1])
-        state = state_of(stopped)
+        state = study.resume_state_of(stopped)
         state.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"fingerprint": "x", "epoch": 5}, state)
-        torn_state = state_of(torn)
+        torn_state = study.resume_state_of(torn)
         torn_state.parent.mkdir(parents=True, exist_ok=True)
         torn_state.write_bytes(b"PK\x03\x04 half a file")
         assert study.epochs_kept(stopped) == 5 and study.epochs_kept(torn) == 0
@@ -476,8 +473,7 @@ def test_a_stop_commits_the_ledger_and_the_trainings_resume_states(tmp_path, mon
         repo, git, out = study_repo(tmp_path, monkeypatch, study)
         trainings = [s for s in study.plan_steps(out, 2, {"arm30"}) if s.kind == "train"]
         a, b = trainings[0], trainings[3]            # seed 0's and another seed's
-        states = [study.resume_path(s.done.parent, s.task,
-                                    s.argv[s.argv.index("--modality") + 1]) for s in (a, b)]
+        states = [study.resume_state_of(s) for s in (a, b)]
         for state in states:
             state.parent.mkdir(parents=True, exist_ok=True)
             state.write_bytes(b"epoch 3")

@@ -497,6 +497,12 @@ def training_record(step: Step) -> dict | None:
     return training
 
 
+def resume_state_of(step: Step) -> Path:
+    """Where a training step keeps its resume state (named as the training names it)."""
+    return resume_path(step.done.parent, step.task,
+                       step.argv[step.argv.index("--modality") + 1])
+
+
 def epochs_kept(step: Step) -> int:
     """The epochs a stopped training's resume state holds (0 with none, or one that cannot
     be read): a training that goes on from it has only the rest to run. Read as the
@@ -504,8 +510,7 @@ def epochs_kept(step: Step) -> int:
     decide when it starts."""
     if step.kind != "train":
         return 0
-    state_file = resume_path(step.done.parent, step.task,
-                             step.argv[step.argv.index("--modality") + 1])
+    state_file = resume_state_of(step)
     if not state_file.exists():
         return 0
     import torch
