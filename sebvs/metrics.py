@@ -243,3 +243,9 @@ def paired_comparison(a, b, seed: int = 0, n_boot: int = 2000) -> dict:
             "ci95": [float(np.percentile(boots, 2.5)), float(np.percentile(boots, 97.5))],
             "p_sign": _binom_two_sided(min(wins, losses), wins + losses),
             "wins": wins, "losses": losses, "ties": int(d.size - wins - losses)}
+
+
+def points(share: float) -> str:
+    """A difference of shares in signed percentage points, one decimal; a mean that sums
+    to zero in floating point (-1e-17) reads +0.0, not -0.0."""
+    return f"{round(100 * share, 1) + 0.0:+.1f}"

@@ -146,3 +146,14 @@ def test_report_flags_a_custom_seed_in_the_train_range():
 def test_unknown_task_is_an_error():
     with pytest.raises(ValueError, match="unknown task"):
         render_report({"task": "fly", "episodes": []})
+
+
+def test_paired_difference_that_sums_to_zero_reads_plus_zero():
+    # per-seed differences 0, +0.1 and -0.1 sum to -9e-18 in floating point: the table
+    # must say +0.0, as the study reports do, not a signed -0.0
+    eps = []
+    for seed, (mine, other) in enumerate(((0, 0), (3, 2), (1, 2))):
+        eps += [nav_episode("rgb+event", seed, mine), nav_episode("rgb", seed, other)]
+    text = render_report({"task": "nav", "episodes": eps})
+    assert "| RGB+Event vs RGB-only | 3 | +0.0 | [-10.0, +10.0] | 1/1/1 |" in text, text
+    assert "-0.0" not in text

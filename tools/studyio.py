@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from sebvs.metrics import paired_comparison
+from sebvs.metrics import paired_comparison, points
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = (("success", "paper rate"), ("strict_success", "strict rate"),
@@ -96,12 +96,6 @@ def best_losses(train_dir: Path) -> dict:
     sweep = json.loads((train_dir / "sweep.json").read_text())
     return {(p["settings"]["modality"], p["settings"]["seed"]): p.get("best_val_loss")
             for p in sweep["points"]}
-
-
-def points(share: float) -> str:
-    """A difference of shares in signed percentage points, one decimal; a mean that sums
-    to zero in floating point (-1e-17) reads +0.0, not -0.0."""
-    return f"{round(100 * share, 1) + 0.0:+.1f}"
 
 
 def paired_text(vs: dict | None) -> str:

@@ -25,7 +25,7 @@ from collections import defaultdict
 import numpy as np
 
 from ..data.splits import SPLITS, split_of
-from ..metrics import arm_metrics, paired_comparison, wilson_interval
+from ..metrics import arm_metrics, paired_comparison, points, wilson_interval
 
 MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event", "rgb+diff")
 NAME = {"expert": "Expert (reference)", "no_action": "No action (baseline)",
@@ -138,8 +138,8 @@ def _paired_section(episodes: list[dict], value, label: str) -> list[str]:
         if r["n"] == 0:     # no seed with the value on both sides (results of older runs)
             continue
         lines.append(f"| {NAME.get(mine, mine)} vs {NAME.get(other, other)} | {r['n']} | "
-                     f"{100 * r['mean_diff']:+.1f} | [{100 * r['ci95'][0]:+.1f}, "
-                     f"{100 * r['ci95'][1]:+.1f}] | {r['wins']}/{r['losses']}/{r['ties']} | "
+                     f"{points(r['mean_diff'])} | [{points(r['ci95'][0])}, "
+                     f"{points(r['ci95'][1])}] | {r['wins']}/{r['losses']}/{r['ties']} | "
                      f"{r['p_sign']:.3f} |")
     if not lines:
         return []

@@ -26,8 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from sebvs.metrics import paired_comparison  # noqa: E402
-from tools.studyio import METRICS, points  # noqa: E402
+from sebvs.metrics import paired_comparison, points  # noqa: E402
+from tools.studyio import METRICS  # noqa: E402
 
 
 def read_results(path: Path) -> dict:

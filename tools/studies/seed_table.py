@@ -35,9 +35,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from sebvs.metrics import paired_comparison  # noqa: E402
+from sebvs.metrics import paired_comparison, points  # noqa: E402
 from tools.studies.compare_evals import TASK_METRICS, _by_key, read_results  # noqa: E402
-from tools.studyio import METRICS, points  # noqa: E402
+from tools.studyio import METRICS  # noqa: E402
 
 
 def _scored(episodes: dict, key, metric: str) -> float | None:

@@ -42,12 +42,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from sebvs.metrics import points  # noqa: E402
 from tools.studies.compare_evals import TASK_METRICS, read_results  # noqa: E402
 from tools.studies.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
                                         PLAN_SEEDS, READ_METRIC, READ_RULE, READINGS,
                                         eval_dir, ledger_machines, plan_steps,
                                         reading_path)
-from tools.studyio import points  # noqa: E402
 
 RATES = (10, 30)
 # the plan's cells, in its order: (condition, scenarios)
