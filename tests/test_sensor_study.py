@@ -137,6 +137,8 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path, capsy
                          "--plot", str(tmp_path / "r.png")]) == 3
         assert (tmp_path / "r.md").read_text() == text
         assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        labels = rep.plot(data, tmp_path / "r2.png")
+        assert labels[:2] == ["10 Hz", "30 Hz"] and labels[-2:] == ["not yet run", "no reading"]
         # --update: the page's prose stays, the tables between the markers are remade
         page = tmp_path / "results.md"
         page.write_text(f"# Results\nprose\n{rep.BEGIN}\nold tables\n{rep.END}\nmore prose\n")
@@ -167,6 +169,18 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path, capsy
         partial, _, _ = rep.report(tmp_path, unread_rows=True)
         assert "| rgb+diff (2 of 3 seeds) | rgb+event (2 of 3 seeds) |" in partial
         assert page.read_text() == "# Results\nno markers\n"       # left alone
+
+
+def test_the_finished_studys_figure_has_no_legend_for_cells_it_lacks(tmp_path):
+    """The committed study has every reading (exit 0): its figure's legend names the rates
+    and verdicts, not the markers of unread or left-out cells, which it does not draw."""
+    with tool_module("studies/sensor_study") as study, \
+            tool_module("studies/sensor_report") as rep:
+        _, data, done = rep.report(study.ROOT / "studies" / "sensors")
+        assert done
+        labels = rep.plot(data, tmp_path / "r.png")
+        assert "not yet run" not in labels and "no reading" not in labels
+        assert {"10 Hz", "30 Hz", "helps", "hurts"} <= set(labels)
 
 
 def test_a_difference_that_sums_to_zero_reads_plus_zero():

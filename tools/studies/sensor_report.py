@@ -415,12 +415,13 @@ RATE_MARKER = {10: "o", 30: "s"}
 SHORT = {HELPS: "helps", HURTS: "hurts", NONE: "none"}
 
 
-def plot(data: dict, path: Path) -> None:
+def plot(data: dict, path: Path) -> list[str]:
     """The headline tables as a forest plot, one panel per task: per cell (top to bottom
     in the plan's order) RGB+Event - RGB+Diff in points at each rate, a marker at the
     mean over training seeds and a line for the episodes' paired 95 % interval, coloured
     by the rule's verdict (hollow where the cell has no reading yet); the grey band is the
-    rule's least difference; the plan's prediction is written at the right."""
+    rule's least difference; the plan's prediction is written at the right. Returns the
+    legend's labels: the markers for unread and left-out cells appear only where used."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -429,6 +430,7 @@ def plot(data: dict, path: Path) -> None:
     min_diff = float(READ_RULE[READ_RULE.index("--min-diff") + 1])
     tasks = list(data["tasks"])
     fig, axes = plt.subplots(1, len(tasks), figsize=(6.2 * len(tasks), 5.2), squeeze=False)
+    missing = set()                 # which of "not yet run", "no reading" was drawn
     for ax, task in zip(axes[0], tasks):
         readings = data["tasks"][task]["readings"]
         cells = PLAN_CELLS[task]
@@ -445,6 +447,7 @@ def plot(data: dict, path: Path) -> None:
                     left_out = cell in (table or {}).get("left_out", [])
                     ax.plot(0, yk, "x" if left_out else RATE_MARKER[rate],
                             mfc="none", mec="0.6", color="0.6", ms=5)
+                    missing.add("no reading" if left_out else "not yet run")
                     continue
                 colour = VERDICT_COLOUR[verdict(r["reading"])]
                 lo, hi = (100 * v for v in r["episodes"]["ci95"])
@@ -465,9 +468,11 @@ def plot(data: dict, path: Path) -> None:
     handles = [Line2D([], [], marker=RATE_MARKER[r], ls="", color="0.3", label=f"{r} Hz")
                for r in RATES]
     handles += [Line2D([], [], color=c, lw=2, label=v) for v, c in VERDICT_COLOUR.items()]
-    handles.append(Line2D([], [], marker="o", ls="", mfc="none", mec="0.6",
-                          label="not yet run"))
-    handles.append(Line2D([], [], marker="x", ls="", color="0.6", label="no reading"))
+    if "not yet run" in missing:
+        handles.append(Line2D([], [], marker="o", ls="", mfc="none", mec="0.6",
+                              label="not yet run"))
+    if "no reading" in missing:
+        handles.append(Line2D([], [], marker="x", ls="", color="0.6", label="no reading"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8,
                frameon=False)
     fig.suptitle(f"The sensor study ({PLAN_FILE}): per cell, the mean over training seeds "
@@ -477,6 +482,7 @@ def plot(data: dict, path: Path) -> None:
     fig.tight_layout(rect=(0, 0.05, 1, 0.95), w_pad=6)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return [h.get_label() for h in handles]
 
 
 BEGIN = "<!-- sensor_report.py: begin -->"
