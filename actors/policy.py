@@ -47,6 +47,12 @@ class Policy(Actor):
         # or "auto": frozen on the realtime clock, where the chain's latency is the figure,
         # eager in lockstep, where results must reproduce bit for bit
         graph: Literal["auto", "eager", "frozen"] = "auto"
+        # a closed-loop ablation, off unless asked: modality -> {"channels": [int],
+        # "levels": [float]}, those input channels held at those levels (model input
+        # units) every tick; tools/studies/ablation_levels.py gives a checkpoint's
+        # mean levels. Named in every action's meta and in stats, so an ablated row
+        # cannot pass for a whole one
+        ablate: dict = field(default_factory=dict)
 
     async def setup(self) -> None:
         from sebvs.policy.infer import PolicySet, PreviousFrame, TickSync, resolve_checkpoints
@@ -63,6 +69,13 @@ class Policy(Actor):
         # the previous tick's RGB frame is kept only where a loaded checkpoint reads it
         self.previous = PreviousFrame() if "rgb" in self.connected and any(
             "rgb_prev" in MODALITY_INPUTS[m] for m in self.policies.modalities) else None
+        for m, spec in p.ablate.items():
+            if not isinstance(spec, dict) or set(spec) != {"channels", "levels"}:
+                raise ValueError(f"ablate.{m} must be {{channels=[...], levels=[...]}}, "
+                                 f"not {short_repr(spec)}")
+            self.policies.ablate(m, list(spec["channels"]), list(spec["levels"]))
+            self.log.warning("%s runs ablated: input channels %s held at %s", m,
+                             spec["channels"], spec["levels"])
         self._check_usable(p.modality)
         self.sync = TickSync(tuple(self._wired()))
         self.policies.warm_up()
@@ -150,6 +163,8 @@ class Policy(Actor):
             t_sim = next(iter(frames.values()))[1]
             meta = {"modality": modality, "input_ticks": {s: tick for s in frames},
                     "inference_ms": round(inf_ms, 4), "preprocess_ms": round(prep_ms, 4)}
+            if modality in self.policies.ablated:
+                meta["ablated_channels"] = self.policies.ablated[modality][0]
             # the message that completed this tick carries the hop stamps on
             parent = msg if msg is not None and msg.tick == tick else None
             await self.emit("action", {self.policies.output: y}, meta=meta, t_sim=t_sim,
@@ -191,6 +206,8 @@ class Policy(Actor):
                 "emitted": self.emitted, "last_tick": self.sync.last_tick,
                 "skipped_ticks": self.skipped_ticks, "swaps": self.swaps,
                 "event_frame_mismatch": self.event_frame_mismatch,
+                "ablated": {m: {"channels": c, "levels": [float(v) for v in lv.ravel()]}
+                            for m, (c, lv) in self.policies.ablated.items()},
                 "inference_ms": summarize(self.inference_ms, 1.0)}
 
 

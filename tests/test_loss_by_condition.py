@@ -133,3 +133,34 @@ def test_ablating_the_part_a_policy_reads_costs_its_skill(tmp_path):
         assert tool.ablated_channels(cfg, "second") == [3, 4]
         assert tool.main([str(data), str(tmp_path / "ckpt" / "nav-rgb.pt"),
                           "--ablate", "second"]) == 2
+
+
+def test_ablation_levels_are_the_channels_mean_and_parse_as_the_actors_parameter(tmp_path,
+                                                                                 capsys):
+    """tools/studies/ablation_levels.py: the event channels' mean over the validation
+    frames, as the offline ablation holds them, and a --set the policy actor takes."""
+    import numpy as np
+
+    from sebvs.runtime.topology import parse_override
+    data = make_dataset(tmp_path / "data", episodes=6, frames=8, target="gain")
+    train(data, tmp_path / "ckpt", "nav", ["rgb+event", "rgb"], epochs=1, batch=8,
+          val_fraction=0.4, norm=Normalisation(size=32), progress=False, log=lambda s: None)
+    pt = tmp_path / "ckpt" / "nav-rgb+event.pt"
+    with tool_module("studies/ablation_levels") as tool, \
+            tool_module("studies/val_loss") as val:
+        levels = tool.levels_of(data, pt)
+        assert levels["channels"] == [3, 4] and levels["modality"] == "rgb+event"
+        _, cfg, norm, episodes = val.validation_of(pt, data)
+        frames = val.frames_of(data, episodes, cfg, norm)
+        mean = np.mean([frames[i][0][[3, 4]].mean(axis=(1, 2)) for i in range(len(frames))],
+                       axis=0)
+        frames.close()
+        np.testing.assert_allclose(levels["levels"], mean, rtol=1e-5)
+        parts, value = parse_override(tool.override(levels))
+        assert parts == ["policy", "ablate"]
+        assert value == {"rgb+event": {"channels": [3, 4], "levels": levels["levels"]}}
+        assert tool.main([str(data), str(pt), "--json", str(tmp_path / "l.json")]) == 0
+        assert "--set 'policy.ablate=" in capsys.readouterr().out
+        assert json.loads((tmp_path / "l.json").read_text()) == levels
+        assert tool.main([str(data), str(tmp_path / "ckpt" / "nav-rgb.pt")]) == 2
+        assert "no 'second' part" in capsys.readouterr().err

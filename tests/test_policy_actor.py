@@ -126,10 +126,11 @@ class _Node:
     """Stands in for the runtime: records what the actor emits and publishes."""
 
     def __init__(self):
-        self.sent, self.events = [], []
+        self.sent, self.events, self.metas = [], [], []
 
     def emit(self, output, arrays, *, meta=None, t_sim=None, tick=None, parent=None):
         self.sent.append((tick, meta["modality"], {k: v.copy() for k, v in arrays.items()}))
+        self.metas.append(meta)
 
     def event(self, kind, fields):
         self.events.append((kind, fields))
@@ -214,3 +215,54 @@ def test_the_default_graph_is_frozen_on_the_realtime_clock_and_eager_in_lockstep
                    connected=frozenset({"rgb", "events"}), node=_Node())
     asyncio.run(actor.setup())
     assert set(actor.stats()["graphs"].values()) == {expected}
+
+
+def _actions_on(ckpts, event_frames, **params):
+    """The rgb+event actions of one actor fed one RGB frame and these event frames, and
+    the actor (its stats, the metas it sent)."""
+    node = _Node()
+    actor = Policy("policy", Policy.Params(directory=str(ckpts), graph="eager", **params),
+                   connected=frozenset({"rgb", "events"}), node=node)
+    rgb = np.full((32, 32, 3), 90, np.uint8)
+
+    async def scenario():
+        await actor.setup()
+        for tick, ev in enumerate(event_frames):
+            await actor.on_rgb(_msg("rgb", tick, rgb))
+            await actor.on_events(_msg("events", tick, ev))
+
+    asyncio.run(scenario())
+    return np.stack([a["action"] for _, _, a in node.sent]), actor, node
+
+
+def test_an_ablated_stream_is_held_at_its_level_and_named_where_a_user_looks(ckpts):
+    """policy.ablate holds the named input channels at the given levels: the rgb+event
+    policy's actions no longer depend on the events and equal the whole policy's on event
+    frames at those levels; every action's meta and the stats name the ablation."""
+    rng = np.random.default_rng(2)
+    frames = [rng.integers(0, 8, (2, 32, 32), dtype=np.uint8) for _ in range(3)]
+    whole, _, _ = _actions_on(ckpts, frames)
+    assert np.ptp(whole, axis=0).max() > 1e-6          # the events move the whole policy
+    # event channels are 3 and 4 (after r, g, b); levels in model input units
+    spec = {"rgb+event": {"channels": [3, 4], "levels": [0.0, 0.0]}}
+    ablated, actor, node = _actions_on(ckpts, frames, ablate=spec)
+    np.testing.assert_array_equal(ablated, np.repeat(ablated[:1], 3, axis=0))
+    no_events, _, _ = _actions_on(ckpts, [np.zeros((2, 32, 32), np.uint8)] * 3)
+    np.testing.assert_allclose(ablated, no_events, atol=1e-6)   # empty frames -> input 0
+    assert all(m["ablated_channels"] == [3, 4] for m in node.metas)
+    assert actor.stats()["ablated"] == {"rgb+event": {"channels": [3, 4], "levels": [0.0, 0.0]}}
+    _, plain, plain_node = _actions_on(ckpts, frames[:1])
+    assert plain.stats()["ablated"] == {} and "ablated_channels" not in plain_node.metas[0]
+
+
+@pytest.mark.parametrize("spec, match", [
+    ({"thermal": {"channels": [0], "levels": [0.0]}}, "'thermal' has no checkpoint"),
+    ({"rgb+event": {"channels": [3, 4], "levels": [0.0]}}, "2 channels and 1 levels"),
+    ({"rgb+event": {"channels": [5], "levels": [0.0]}}, "in 0..4"),
+    ({"rgb+event": {"channels": [3, 3], "levels": [0.0, 0.0]}}, "distinct"),
+    ({"rgb+event": {"channels": [3], "levels": [float("nan")]}}, "finite"),
+    ({"rgb+event": [3, 4]}, "ablate.rgb\\+event must be"),
+])
+def test_a_bad_ablation_is_refused_with_what_is_wrong(ckpts, spec, match):
+    with pytest.raises(ValueError, match=match):
+        _actions_on(ckpts, [], ablate=spec)

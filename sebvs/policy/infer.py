@@ -79,6 +79,28 @@ class PolicySet:
             raise ValueError(f"checkpoints mix tasks {sorted(tasks)}: one policy, one task")
         self.task = tasks.pop()
         self.output = "action" if self.task == "nav" else "pose"
+        self.ablated: dict[str, tuple[list[int], np.ndarray]] = {}
+
+    def ablate(self, modality: str, channels: list[int], levels: list[float]) -> None:
+        """Hold input ``channels`` of ``modality`` at ``levels`` (model input units) on every
+        call from now on: a closed-loop ablation, the stream those channels carry replaced
+        by a constant level. ValueError naming what is wrong."""
+        if modality not in self.policies:
+            raise ValueError(f"ablate: modality {modality!r} has no checkpoint loaded "
+                             f"(loaded: {', '.join(self.policies)})")
+        n = self.policies[modality].model.in_channels
+        if not channels or len(channels) != len(levels):
+            raise ValueError(f"ablate {modality}: {len(channels)} channels and {len(levels)} "
+                             f"levels; give one level per channel, at least one")
+        bad = [c for c in channels if not isinstance(c, int) or isinstance(c, bool)
+               or not 0 <= c < n]
+        if bad or len(set(channels)) != len(channels):
+            raise ValueError(f"ablate {modality}: channels {channels} must be distinct "
+                             f"integers in 0..{n - 1} (the model's {n} input channels)")
+        values = np.asarray(levels, dtype=np.float32)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"ablate {modality}: levels {list(levels)} must be finite")
+        self.ablated[modality] = (list(channels), values[:, None, None])
 
     @property
     def modalities(self) -> list[str]:
@@ -100,6 +122,9 @@ class PolicySet:
         t0 = time.perf_counter()
         x = model_input(modality, p.norm, rgb=rgb, events=events, rgb_prev=rgb_prev,
                         out=self._inputs[modality])
+        if modality in self.ablated:
+            channels, levels = self.ablated[modality]
+            x[channels] = levels
         t1 = time.perf_counter()
         with self._torch.inference_mode():
             y = p.run(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
