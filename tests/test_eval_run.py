@@ -124,6 +124,7 @@ def test_test_split_runs_reserved_seeds_over_both_nav_variants(tmp_path):
     assert results["split"] == "test" and results["seed"] == test.first
     assert results["seed_range"] == [test.first, test.last]
     assert results["scenarios"] == ["indoor", "outdoor"]
+    assert results["overrides"] == ["sim.episode_s=3.0"]       # said in results.json
     # the episode seeds are those the sim derives from the reserved topology seed
     sim_seed = load_topology(plan.expert_topology, [f"topology.seed={test.first}"]) \
         .actor_seed("sim")

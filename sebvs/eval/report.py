@@ -3,7 +3,8 @@
 ``results`` is what `sebvs eval` writes to results.json::
 
     {"task": "nav" | "arm", "clock": ..., "split": "dev" | "test" | "custom",
-     "seed_range": [first, last], "seed": topology seed, "episodes": [
+     "seed_range": [first, last], "seed": topology seed,
+     "overrides": [the --set given, where any], "episodes": [
         {"modality": "rgb" | "event" | "rgb+event" | "expert" | "no_action",
          "condition": "nominal", "scenario": "indoor", "seed": 3, "metrics": {...}}, ...]}
 

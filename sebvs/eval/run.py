@@ -620,6 +620,8 @@ def evaluate(plan: EvalPlan) -> dict:
                "seed_range": [rng.first, rng.last], "seed": plan.seed,
                "scenarios": list(plan.scenarios), "episodes_per_run": plan.episodes,
                "episodes": []}
+    if plan.extra:      # the --set overrides every run had (an ablation among them)
+        results["overrides"] = list(plan.extra)
     trace = TASKS[plan.task].trace_key
     for run in runs:
         for rec in _read_episodes(plan.episode_file(run), plan.seed)[:plan.episodes]:
