@@ -70,7 +70,8 @@ class Policy(Actor):
         self.previous = PreviousFrame() if "rgb" in self.connected and any(
             "rgb_prev" in MODALITY_INPUTS[m] for m in self.policies.modalities) else None
         for m, spec in p.ablate.items():
-            if not isinstance(spec, dict) or set(spec) != {"channels", "levels"}:
+            if not isinstance(spec, dict) or set(spec) != {"channels", "levels"} \
+                    or not all(isinstance(spec[k], list) for k in spec):
                 raise ValueError(f"ablate.{m} must be {{channels=[...], levels=[...]}}, "
                                  f"not {short_repr(spec)}")
             self.policies.ablate(m, list(spec["channels"]), list(spec["levels"]))

@@ -262,6 +262,8 @@ def test_an_ablated_stream_is_held_at_its_level_and_named_where_a_user_looks(ckp
     ({"rgb+event": {"channels": [3, 3], "levels": [0.0, 0.0]}}, "distinct"),
     ({"rgb+event": {"channels": [3], "levels": [float("nan")]}}, "finite"),
     ({"rgb+event": [3, 4]}, "ablate.rgb\\+event must be"),
+    ({"rgb+event": {"channels": 3, "levels": [0.0]}}, "ablate.rgb\\+event must be"),
+    ({"rgb+event": {"channels": [3], "levels": ["dark"]}}, "finite numbers"),
 ])
 def test_a_bad_ablation_is_refused_with_what_is_wrong(ckpts, spec, match):
     with pytest.raises(ValueError, match=match):

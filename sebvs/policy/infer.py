@@ -97,9 +97,14 @@ class PolicySet:
         if bad or len(set(channels)) != len(channels):
             raise ValueError(f"ablate {modality}: channels {channels} must be distinct "
                              f"integers in 0..{n - 1} (the model's {n} input channels)")
-        values = np.asarray(levels, dtype=np.float32)
-        if not np.all(np.isfinite(values)):
-            raise ValueError(f"ablate {modality}: levels {list(levels)} must be finite")
+        try:
+            values = np.asarray(levels, dtype=np.float32)
+        except (TypeError, ValueError):
+            values = np.array([np.nan], np.float32)
+        if values.ndim != 1 or not np.all(np.isfinite(values)) \
+                or any(isinstance(v, bool) for v in levels):
+            raise ValueError(f"ablate {modality}: levels {list(levels)} must be finite "
+                             f"numbers")
         self.ablated[modality] = (list(channels), values[:, None, None])
 
     @property
