@@ -8,6 +8,8 @@ actor (actors/policy.py) only wires these to the runtime.
 """
 from __future__ import annotations
 
+import math
+import numbers
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,14 +99,11 @@ class PolicySet:
         if bad or len(set(channels)) != len(channels):
             raise ValueError(f"ablate {modality}: channels {channels} must be distinct "
                              f"integers in 0..{n - 1} (the model's {n} input channels)")
-        try:
-            values = np.asarray(levels, dtype=np.float32)
-        except (TypeError, ValueError):
-            values = np.array([np.nan], np.float32)
-        if values.ndim != 1 or not np.all(np.isfinite(values)) \
-                or any(isinstance(v, bool) for v in levels):
+        if not all(isinstance(v, numbers.Real) and not isinstance(v, bool)
+                   and math.isfinite(v) for v in levels):
             raise ValueError(f"ablate {modality}: levels {list(levels)} must be finite "
                              f"numbers")
+        values = np.asarray(levels, dtype=np.float32)
         self.ablated[modality] = (list(channels), values[:, None, None])
 
     @property
