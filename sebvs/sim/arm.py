@@ -259,10 +259,15 @@ class ArmScene(Scene):
             raise ValueError(f"arm command must be a pose of shape (6,), got {cmd.shape}")
         if not np.isfinite(cmd).all():
             raise ValueError(f"arm command is not finite: {cmd.tolist()}")
-        pose = cmd.copy()
+        self.command_pose = self.clip_command(cmd)
+
+    def clip_command(self, command: np.ndarray) -> np.ndarray:
+        """The pose with its position clipped into the arm's reach box and its angles
+        wrapped to (-pi, pi]."""
+        pose = np.array(command, dtype=np.float64)
         pose[:3] = np.clip(pose[:3], (-0.9, -0.9, -0.2), (0.9, 0.9, 0.9))
         pose[3:] = -((-pose[3:] + math.pi) % (2 * math.pi) - math.pi)
-        self.command_pose = pose
+        return pose
 
     def scripted(self, model, data) -> None:
         if self.belt_speed:

@@ -315,13 +315,17 @@ class NavScene(Scene):
         data.ctrl[:] = 0.0
         mujoco.mj_forward(model, data)
 
+    def clip_command(self, command: np.ndarray) -> np.ndarray:
+        """[v, w] clipped to [-1, 1], the fractions of v_max and w_max the wheels take."""
+        return np.clip(np.asarray(command, dtype=np.float64), -1.0, 1.0)
+
     def apply_command(self, model, data, command: np.ndarray) -> None:
         cmd = np.asarray(command, dtype=np.float64)
         if cmd.shape != (2,):
             raise ValueError(f"nav command must have shape (2,), got {cmd.shape}")
         if not np.isfinite(cmd).all():
             raise ValueError(f"nav command is not finite: {cmd.tolist()}")
-        v, w = np.clip(cmd, -1.0, 1.0)
+        v, w = self.clip_command(cmd)
         data.ctrl[0] = v * float(self.config["v_max"])
         data.ctrl[1] = w * float(self.config["w_max"])
         data.ctrl[2] = 0.0

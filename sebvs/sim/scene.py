@@ -167,6 +167,12 @@ class Scene(ABC):
         """The command in force before any arrives (float64 (command_dim,)): stand still."""
         return np.zeros(self.command_dim)
 
+    def clip_command(self, command: np.ndarray) -> np.ndarray:
+        """The command as this scene executes it (a finite (command_dim,) float64): inside
+        its limits. What the sim reports as its command in force (stats, the env's
+        info["command"]); apply_command executes the same."""
+        return np.asarray(command, dtype=np.float64)
+
     @abstractmethod
     def apply_command(self, model: mujoco.MjModel, data: mujoco.MjData,
                       command: np.ndarray) -> None:

@@ -207,5 +207,5 @@ class SceneStepper:
         except ValueError as exc:
             self.data.ctrl[:] = saved               # a scene must not half-apply a command
             return str(exc)
-        self.command = cmd
+        self.command = self.scene.clip_command(cmd)     # in force, as the scene takes it
         return None
