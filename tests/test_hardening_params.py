@@ -100,7 +100,11 @@ def test_every_shipped_actor_accepts_its_own_defaults():
     ("topology.queue=100001", "[topology] key 'queue'"),
     ("topology.queue=\"lots\"", "[topology] key 'queue'"),
     ("topology.queue=2.5", "[topology] key 'queue'"),
-    ("topology.seed=-1", "[topology] key 'seed': -1 is out of range (must be >= 0)"),
+    ("topology.seed=-1", "[topology] key 'seed': -1 is out of range (must be >= 0 and < "
+                         "2147483648)"),
+    # 2**31 + 100,000 would wrap onto the test split's first seed (sebvs/data/splits.py)
+    ("topology.seed=2147583648", "[topology] key 'seed': 2147583648 is out of range (must "
+                                 "be >= 0 and < 2147483648)"),
     ("topology.ready_timeout_s=0", "[topology] key 'ready_timeout_s': 0.0 is out of range"),
     ("topology.ready_timeout_s=inf", "[topology] key 'ready_timeout_s': inf is not a finite"),
     ("topology.ready_timeout_s=nan", "[topology] key 'ready_timeout_s': nan is not a finite"),

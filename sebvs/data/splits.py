@@ -8,7 +8,9 @@ evaluations we tune against use, and which stay held out.
                                 `sebvs record` refuses these seeds
 
 Reserving topology seeds reserves episodes: the sim's seed is the topology seed through
-Topology.actor_seed (a bijection modulo 2**31), and episode k's seed is
+Topology.actor_seed (one-to-one on the topology seeds 0 <= seed < 2**31, and every seed
+outside that range is refused, by the topology loader, the env and `sebvs eval`: a larger
+one would wrap around onto a smaller one's, a test seed's among them), and episode k's seed is
 SeedSequence([sim seed, k]) (actors/sim.py episode_seed), so a topology seed that no
 recording used gives episodes that no recording saw (up to a collision of the 32-bit
 episode seed: about 2e-4 for 4,000 recorded against 200 evaluated episodes). Seeds at

@@ -23,6 +23,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from sebvs.runtime.topology import check_seed
 from sebvs.sensor_pairs import DEFAULT_CONDITION, DEFAULT_SENSOR
 
 OBS_KEYS = ("rgb", "events", "proprio")
@@ -118,7 +119,8 @@ class ERPEnv(gymnasium.Env):
       privileged   info also carries the expert's inputs: "ideal" (the ideal 8-bit
                    render), "state" (the sim's state) and, arm, "depth"
       render_mode  None | "rgb_array" (render() returns the camera's RGB frame)
-      seed         the topology seed a first reset() without one plays (0)
+      seed         the topology seed a first reset() without one plays (0), 0 <= seed < 2**31
+                   like every seed of reset(seed=...): one seed, one set of episodes
       overrides    further `--set actor.key=value` lines on the policy topology
     """
 
@@ -173,7 +175,8 @@ class ERPEnv(gymnasium.Env):
         self._camera_core, self._preset = CameraCore, preset
         self._sensor_stream, self._frame_stream = SensorStream, FrameStream
         self.camera = None
-        self.run_seed = int(seed)
+        self.run_seed = check_seed(seed, "seed")
+        self.closed = False
         self._build_chain()
         scene = self.sim.scene
         h, w = scene.image_shape()
@@ -298,12 +301,17 @@ class ERPEnv(gymnasium.Env):
 
     # ------------------------------------------------------------------ gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._check_open("reset()")
+        if seed is not None:
+            # a topology seed, one-to-one with the episodes it plays: one that wrapped
+            # around (2**32 + 5) would replay another seed's, a held-out split's among them
+            seed = check_seed(seed, "reset(seed=...)")
         super().reset(seed=seed)
         options = options or {}
         if self.episode >= 0 and not self.ended:
             self.t_offset += self.sim.t_ep()     # as the sim's clock runs on over a stop
         if seed is not None:
-            self.run_seed = int(seed)
+            self.run_seed = seed
             self._build_chain()
             self.t_offset = 0.0
             self.episode = -1
@@ -321,7 +329,13 @@ class ERPEnv(gymnasium.Env):
         self._sample()
         return self._observation(), self._info()
 
+    def _check_open(self, call: str) -> None:
+        if self.closed:
+            raise gymnasium.error.ClosedEnvironmentError(f"{call} on a closed env: make a "
+                                                         f"new one")
+
     def step(self, action):
+        self._check_open("step()")
         if self.ended:
             raise RuntimeError("step() after the episode ended: call reset()")
         sim = self.sim
@@ -370,6 +384,7 @@ class ERPEnv(gymnasium.Env):
         return None
 
     def close(self) -> None:
+        self.closed = True
         if self.camera is not None:
             self.camera.close()
             self.camera = None

@@ -46,9 +46,9 @@ class Range:
     finite: bool = True
 
     def __str__(self) -> str:
-        parts = [f"{op} {bound:g}" for op, bound in ((">=", self.ge), (">", self.gt),
-                                                    ("<=", self.le), ("<", self.lt))
-                 if bound is not None]
+        bounds = ((">=", self.ge), (">", self.gt), ("<=", self.le), ("<", self.lt))
+        parts = [f"{op} {bound}" if isinstance(bound, int) else f"{op} {bound:g}"
+                 for op, bound in bounds if bound is not None]
         return " and ".join(parts) or "any value"
 
     def check(self, value: Any, where: str) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import operator
 import os
 import re
 import tomllib
@@ -25,8 +26,13 @@ QUEUE = Union[Annotated[int, Range(ge=1, le=MAX_QUEUE)], Literal["latest"]]
 MAX_BYTES = Annotated[int, Range(ge=1024, le=1 << 40)]
 DEFAULT_MAX_BYTES = 256 << 20
 # [topology] keys, checked by the same rules as actor parameters
+# topology seeds: the range on which actor_seed is one-to-one, so that no two accepted
+# seeds give an actor the same seed (a seed that wrapped around would play another seed's
+# episodes, a held-out split's among them: sebvs/data/splits.py)
+SEED_LIMIT = 2 ** 31
+SEED = Annotated[int, Range(ge=0, lt=SEED_LIMIT)]
 TOPOLOGY_KEYS = {"name": str, "clock": Literal["lockstep", "realtime"],
-                 "seed": Annotated[int, Range(ge=0)], "restart": Literal["stop", "restart"],
+                 "seed": SEED, "restart": Literal["stop", "restart"],
                  "max_restarts": Annotated[int, Range(ge=0)],
                  "transport": Literal["ipc", "tcp"], "host": str, "description": str,
                  "queue": QUEUE, "ready_timeout_s": Annotated[float, Range(gt=0)],
@@ -171,8 +177,32 @@ class Topology:
         return groups
 
     def actor_seed(self, name: str) -> int:
-        """A per-actor seed derived from the topology seed, stable across runs."""
-        return (self.seed * 1_000_003 + zlib.crc32(name.encode())) % (2 ** 31)
+        """A per-actor seed derived from the topology seed, stable across runs: for each
+        name a bijection of [0, SEED_LIMIT) (1,000,003 is odd, so invertible modulo 2**31),
+        which is why seeds outside it are refused (`check_seed`)."""
+        return (check_seed(self.seed) * 1_000_003 + zlib.crc32(name.encode())) % SEED_LIMIT
+
+
+def check_seed(seed: Any, where: str = "topology seed") -> int:
+    """``seed`` as an int if it is a topology seed (0 <= seed < SEED_LIMIT), else ValueError
+    (one line): a larger one would wrap around onto a smaller seed's episodes.
+
+    Parameters:
+        seed: the value given.
+        where: what it was given as, for the message ("--seed", "reset(seed=...)").
+
+    Returns:
+        The seed.
+    """
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)   # numpy ints too
+    except TypeError:
+        value = None
+    if value is None or not 0 <= value < SEED_LIMIT:
+        raise ValueError(f"{where} {seed!r}: expected an integer 0 <= seed < 2**31 "
+                         f"({SEED_LIMIT:,}); a larger one would replay a smaller one's "
+                         f"episodes")
+    return value
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
