@@ -130,3 +130,15 @@ def recorded_again(root: str | Path, out: str | Path, tick_offset: int = 100) ->
                                                                 np.float32))
         index.add(make_entry(out / e["file"]))
     return out
+
+
+def reindex(root: str | Path) -> Path:
+    """Rewrite ``root``'s index entries from its files as they are now: a test that edits an
+    episode in place stands for a recording made anew, whose index a recorder would write
+    (an edited file the index does not know of is refused as damaged, sebvs/dataset_files.py)."""
+    from sebvs.data.index import write_json_atomic
+    index = DatasetIndex(root)
+    index.data["episodes"] = [make_entry(Path(root) / e["file"], reason=e.get("reason"))
+                              for e in index.episodes()]
+    write_json_atomic(index.path, index.data)
+    return Path(root)

@@ -90,6 +90,8 @@ def test_voxel_frames_are_refused_at_recording_and_training(tmp_path):
     import h5py
     with h5py.File(first, "a") as f:
         f.attrs["event_representation"] = "voxel"
+    from tests.policy_data import reindex
+    reindex(data)
     with pytest.raises(ValueError, match="voxel grids"):
         event_frames_of(data, load_index(data))
 

@@ -10,8 +10,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # lower index = lower layer; a package may import only from strictly lower layers
 LAYERS = (
-    # the one-line hint for a missing optional extra; the two sensor pairs' overrides
-    {"sebvs.extras", "sebvs.sensor_pairs"},
+    # the one-line hint for a missing optional extra; the two sensor pairs' overrides;
+    # a dataset's files and their check against its index; HDF5 errors that name their file
+    {"sebvs.extras", "sebvs.sensor_pairs", "sebvs.dataset_files", "sebvs.h5named"},
+    # what any command may write
+    {"sebvs.output_guard"},
     {"sebvs.runtime", "sebvs.dvs", "sebvs.sim", "sebvs.metrics"},
     # fan-out of episodes: runs topology shards through the runtime for data and eval
     {"sebvs.scale"},

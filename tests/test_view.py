@@ -113,7 +113,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
         f["x"] = [1, 2, 3]
     rrd = str(tmp_path / "x.rrd")
     cases = [(["view", str(tmp_path / "missing.h5"), "--save", rrd], "no such file"),
-             (["view", str(tmp_path / "garbage.h5"), "--save", rrd], "not an episode file"),
+             (["view", str(tmp_path / "garbage.h5"), "--save", rrd], "not a readable HDF5 file"),
              (["view", str(tmp_path / "other.h5"), "--save", rrd], "not an episode file"),
              (["view", "no-such-run-xyz", "--save", rrd], "no live run named"),
              (["view", str(ep), "--save", str(tmp_path / "no" / "x.rrd")], "does not exist")]

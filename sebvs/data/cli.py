@@ -25,7 +25,7 @@ def _export(args) -> int:
     from .export_mcap import export_mcap
     try:
         info = export_mcap(args.dataset, args.out, progress=not args.quiet,
-                           compression=args.compression)
+                           compression=args.compression, force=args.force)
     except (ValueError, OSError, MissingExtra) as exc:
         print(f"sebvs data export: {exc}", file=sys.stderr)
         return 2
@@ -88,9 +88,12 @@ def register(sub) -> None:
     s = dsub.add_parser("stats", help="summary and the paper's Fig. 3 views",
                         description="Print episodes, frames, minutes simulated and labelled "
                                     "commands; --plot writes control-vector / workspace "
-                                    "scatter, per-episode speed and events as PNG.")
+                                    "scatter, per-episode speed and events as PNG. An "
+                                    "episode that differs from the index (size, sha256) or "
+                                    "cannot be read is named and left out: exit code 1.")
     s.add_argument("dir", help="dataset directory")
     s.add_argument("--plot", metavar="FILE", help="write the figure (PNG)")
+    s.add_argument("--force", action="store_true", help="replace the --plot file if it exists")
     s.set_defaults(func=_stats)
     m = dsub.add_parser("compare", help="are two datasets the same recording?",
                         description="Pair the episodes of two datasets by file name and "
@@ -133,6 +136,9 @@ def register(sub) -> None:
     x.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
                    help="MCAP chunk compression (default zstd; every MCAP reader has it)")
     x.add_argument("--quiet", action="store_true", help="no progress bar")
+    x.add_argument("--force", action="store_true",
+                   help="replace .mcap files that exist (never an episode, the index or "
+                        "the source)")
     x.set_defaults(func=_export)
 
     r = sub.add_parser("record", help="record expert demonstrations into a dataset",
@@ -156,6 +162,9 @@ def register(sub) -> None:
                         "each worker's run)")
     r.add_argument("--runs-dir", default=None)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--force", action="store_true",
+                   help="record into a folder that holds other files (never over them: "
+                        "episodes are numbered after the highest there)")
     r.add_argument("--fill", action="store_true",
                    help="make the dataset hold episodes 0..N-1: record only the numbers "
                         "below N it lacks (the holes a stopped --workers run leaves, then "

@@ -38,6 +38,8 @@ import numpy as np
 
 import sebvs
 
+from ..h5named import FileUnreadable, first_line, named, open_h5
+
 TASK_TARGET = {"nav": ("action", 2), "arm": ("pose", 6)}
 PARTIAL = ".partial"
 # attributes stored as JSON text (dicts/lists); decoded by Episode.attrs
@@ -355,7 +357,20 @@ class Episode:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        self.file = h5py.File(self.path, "r")
+        self.file = open_h5(self.path)
+        try:
+            self._read_layout()
+        except FileUnreadable:
+            self.file.close()
+            raise
+        except (KeyError, ValueError, TypeError, OSError) as exc:
+            # a file that opens but is not an episode (no rgb, a torn attribute): the
+            # reason with the name, whatever the reader
+            self.file.close()
+            raise FileUnreadable(f"{self.path}: not an episode file "
+                                 f"({type(exc).__name__}: {first_line(exc)})") from None
+
+    def _read_layout(self) -> None:
         f = self.file
         self.attrs = {}
         raw_keys = f.attrs.get("json_keys", "[]")
@@ -373,17 +388,18 @@ class Episode:
             self.attrs[k] = v
         self.task = self.attrs.get("task", "nav" if "action" in f else "arm")
         self.target_key = TASK_TARGET[self.task][0]
-        self.rgb = f["rgb"]
-        self.event_frame = f["events/frame"] if "events/frame" in f else None
-        self.target = f[self.target_key]
-        self.action = f["action"] if "action" in f else None
-        self.pose = f["pose"] if "pose" in f else None
-        self.t_sim = f["t_sim"]
-        self.tick = f["tick"]
-        self.latency = {k: v for k, v in f["latency"].items()} if "latency" in f else {}
-        self.truth = {k: v for k, v in f["truth"].items()} if "truth" in f else {}
-        self.modality = f["modality"] if "modality" in f else None
-        self.raw_events = ({k: f[f"events/{k}"] for k in ("x", "y", "t", "p", "offset")}
+        # every array read names this file when a chunk fails to decode (h5named)
+        self.rgb = named(f["rgb"])
+        self.event_frame = named(f["events/frame"]) if "events/frame" in f else None
+        self.target = named(f[self.target_key])
+        self.action = named(f["action"]) if "action" in f else None
+        self.pose = named(f["pose"]) if "pose" in f else None
+        self.t_sim = named(f["t_sim"])
+        self.tick = named(f["tick"])
+        self.latency = {k: named(v) for k, v in f["latency"].items()} if "latency" in f else {}
+        self.truth = {k: named(v) for k, v in f["truth"].items()} if "truth" in f else {}
+        self.modality = named(f["modality"]) if "modality" in f else None
+        self.raw_events = ({k: named(f[f"events/{k}"]) for k in ("x", "y", "t", "p", "offset")}
                            if "events/x" in f else None)
 
     def __len__(self) -> int:
@@ -407,5 +423,10 @@ class Episode:
 
 
 def open_episode(path: str | Path) -> Episode:
-    """Open a finished episode file (use as a context manager)."""
+    """Open a finished episode file (use as a context manager).
+
+    The one place episodes are opened: a file that cannot be opened, is not an episode or
+    later fails to decode a chunk raises FileUnreadable (a ValueError) naming it;
+    FileNotFoundError when there is none. Whether the file is still the one its dataset's
+    index recorded is sebvs/data/verify.py's to say."""
     return Episode(path)

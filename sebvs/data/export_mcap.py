@@ -34,7 +34,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ..dataset_files import verify_entries, verify_file
 from ..dvs.emulator import EVENT_DTYPE
+from ..h5named import open_h5
 from ..extras import require
 from .episode import open_episode
 from .ros2_msgs import schema_text
@@ -282,7 +284,7 @@ def check_episode_file(path: Path) -> None:
     import h5py
     if not h5py.is_hdf5(path):
         raise ValueError(f"{path}: not an episode file (not HDF5)")
-    with h5py.File(path, "r") as f:
+    with open_h5(path) as f:
         if "rgb" not in f or not ("action" in f or "pose" in f):
             hint = ("; an event file: `sebvs events export` takes it" if "events/x" in f
                     else "")
@@ -290,27 +292,34 @@ def check_episode_file(path: Path) -> None:
 
 
 def episodes_of(source: Path) -> list[Path]:
-    """The episode files of a dataset directory (in index order) or the one file given."""
+    """The episode files of a dataset directory (in index order) or the one file given,
+    each checked against its index first (sebvs/dataset_files.py): a damaged episode is
+    refused by name before anything is written."""
     if source.is_file():
         check_episode_file(source)
+        verify_file(source)
         return [source]
     if source.is_dir():
         from .index import INDEX, DatasetIndex
         if not (source / INDEX).exists():
             raise ValueError(f"{source}: not a dataset (no {INDEX})")
-        paths = DatasetIndex(source).episode_paths()
-        missing = [p.name for p in paths if not p.exists()]
-        if missing:
-            raise ValueError(f"{source}: indexed episode files missing: {', '.join(missing[:5])}")
-        return paths
+        index = DatasetIndex(source)
+        verify_entries(source, index.episodes())
+        return index.episode_paths()
     raise ValueError(f"{source}: no such file or folder")
 
 
 def export_mcap(source: str | Path, out: str | Path | None = None, progress: bool = True,
-                compression: str = "zstd") -> dict:
+                compression: str = "zstd", force: bool = False) -> dict:
     """Export a dataset directory (one .mcap per episode into ``out``, default
     ``<dataset>/mcap/``) or one episode file (into ``out``: a file, or a folder to put
-    ``<episode>.mcap`` in; default beside the episode). Returns a summary."""
+    ``<episode>.mcap`` in; default beside the episode). Returns a summary.
+
+    Every target is checked before anything is written (sebvs/output_guard.py): an
+    existing .mcap is replaced only with ``force``; an episode, a dataset's index or the
+    source itself never. A target must end in .mcap, so that what it holds is what its
+    name says."""
+    from ..output_guard import OutputRefused, check_output_file
     require("mcap_ros2.writer", "mcap-ros2-support", "formats", "--format mcap")
     source = Path(source)
     episodes = episodes_of(source)
@@ -328,6 +337,10 @@ def export_mcap(source: str | Path, out: str | Path | None = None, progress: boo
     else:
         o = Path(out) if out is not None else source.with_suffix(".mcap")
         targets = [o / (source.stem + ".mcap") if o.is_dir() else o]
+    for target in targets:
+        check_output_file(target, inputs=episodes, force=force)
+        if target.suffix != ".mcap":
+            raise OutputRefused(f"{target}: an MCAP file's name must end in .mcap")
     _check_writable(targets[0])       # before the bar: an unwritable place in one line
     frames = _frame_total(source, episodes)
     topics: dict[str, int] = {}

@@ -11,27 +11,13 @@ POSIX), so a crash at any moment leaves either the old or the new index, never a
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import re
 from pathlib import Path
 
-INDEX = "index.json"
+from ..dataset_files import EPISODE_RE, INDEX, episode_name, file_sha256  # noqa: F401
+
 INDEX_VERSION = 1
-EPISODE_RE = re.compile(r"^episode_(\d+)\.h5(\.partial)?$")
-
-
-def episode_name(number: int) -> str:
-    return f"episode_{number:04d}.h5"
-
-
-def file_sha256(path: str | Path, block: int = 1 << 20) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(block):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
@@ -57,6 +43,22 @@ def make_entry(path: str | Path, reason: str | None = None, name: str | None = N
             "reason": attrs.get("end_reason", "") if reason is None else reason}
 
 
+def read_index(path: Path) -> dict:
+    """``index.json`` as a dict, or ValueError (one line, naming it) for a file that is not
+    an index: not UTF-8 JSON, not an object, or episodes that are not named files."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, RecursionError) as exc:     # UnicodeDecodeError is a ValueError
+        raise ValueError(f"{path}: not a dataset index ({type(exc).__name__})") from None
+    episodes = data.get("episodes") if isinstance(data, dict) else None
+    if not isinstance(episodes, list) or not all(
+            isinstance(e, dict) and isinstance(e.get("file"), str)
+            and "/" not in e["file"] and e["file"] not in ("", ".", "..") for e in episodes):
+        raise ValueError(f"{path}: not a dataset index (expected {{\"episodes\": [{{\"file\": "
+                         f"NAME, ...}}, ...]}} with plain file names)")
+    return data
+
+
 class DatasetIndex:
     """``index.json`` of dataset directory ``root`` (created on the first ``add``)."""
 
@@ -64,7 +66,7 @@ class DatasetIndex:
         self.root = Path(root)
         self.path = self.root / INDEX
         if self.path.exists():
-            self.data = json.loads(self.path.read_text())
+            self.data = read_index(self.path)
             if task is not None and self.data.get("task") not in (None, task):
                 raise ValueError(f"{self.root}: dataset holds task {self.data['task']!r}, "
                                  f"not {task!r}")

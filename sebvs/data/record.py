@@ -98,17 +98,34 @@ class Progress:
         self.bar.close()
 
 
+def is_recording(path: Path) -> bool:
+    """A folder `sebvs record` may add to: a dataset, or what a recording leaves before its
+    index exists (episode files, a .partial, a fan-out's staging folder)."""
+    from sebvs.dataset_files import EPISODE_RE
+    from sebvs.output_guard import is_dataset_dir
+    return is_dataset_dir(path) or all(
+        EPISODE_RE.match(q.name) or q.name == STAGING or q.name.startswith(".index.json.")
+        for q in path.iterdir())
+
+
 def cmd_record(args) -> int:
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
     from sebvs.sensor_pairs import camera_override, emulator_override
     from .index import DatasetIndex
     from .splits import check_recording_seed
+    from sebvs.output_guard import OutputRefused, check_output_dir
 
     if getattr(args, "sensor", None):   # the CLI's; callers building their own args may not
         args.set = [camera_override(args.sensor), emulator_override(args.sensor), *args.set]
     name = find_recorder(load_topology(args.topology, args.set))
     out = Path(args.out)
+    try:
+        check_output_dir(out, inputs=[args.topology], force=getattr(args, "force", False),
+                         owns=is_recording, what="dataset")
+    except OutputRefused as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
     overrides = [*args.set, f"{name}.out={json.dumps(str(out))}",
                  f"{name}.episodes={args.episodes}",
                  f"{name}.topology={json.dumps(str(Path(args.topology).resolve()))}",

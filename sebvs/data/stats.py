@@ -15,8 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset_files import episode_problem
+from ..h5named import FileUnreadable
 from .episode import open_episode
-from .index import INDEX
+from .index import INDEX, DatasetIndex
 
 MAX_VALUES = 8          # a coverage row per value up to this many distinct values
 
@@ -40,6 +42,7 @@ class DatasetStats:
     task: str
     episodes: list[EpisodeStats] = field(default_factory=list)
     targets: np.ndarray | None = None   # all targets [N, 2|6]
+    damaged: list[str] = field(default_factory=list)    # "<file>: <why>", left out
 
     @property
     def frames(self) -> int:
@@ -91,6 +94,8 @@ class DatasetStats:
                 v, w = self.targets[:, 0], self.targets[:, 1]
                 lines.append(f"  v mean {v.mean():+.3f} sd {v.std():.3f}; "
                              f"w mean {w.mean():+.3f} sd {w.std():.3f}")
+        for line in self.damaged:
+            lines.append(f"  damaged, left out: {line}")
         cover = self.coverage()
         if cover:
             lines.append("  coverage (episodes / frames per scene setting)")
@@ -103,48 +108,72 @@ class DatasetStats:
         return "\n".join(lines)
 
 
+def episode_entries(root: Path) -> list[dict]:
+    """The indexed episodes' entries (only those: .partial and unindexed files are never
+    used); without an index, the episode files on disk, with nothing to check them by."""
+    if (root / INDEX).exists():
+        return DatasetIndex(root).episodes()
+    return [{"file": p.name} for p in sorted(root.glob("episode_*.h5"))]
+
+
 def episode_files(root: Path) -> list[str]:
-    """The indexed episodes (only those: .partial and unindexed files are never used)."""
-    index = root / INDEX
-    if index.exists():
-        return [e["file"] for e in json.loads(index.read_text())["episodes"]]
-    return sorted(p.name for p in root.glob("episode_*.h5"))
+    """The names of `episode_entries`."""
+    return [e["file"] for e in episode_entries(Path(root))]
 
 
 def collect(root: str | Path) -> DatasetStats:
+    """The statistics of the whole episodes of dataset ``root``; an episode that differs
+    from its index or cannot be read is left out and named in ``damaged``."""
     root = Path(root)
-    files = episode_files(root)
-    task, targets, eps = None, [], []
-    for name in files:
-        with open_episode(root / name) as ep:
-            task = task or ep.task
-            y = ep.target[:]
-            t = ep.t_sim[:]
-            # an episode covers its frames' span plus one control period
-            dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-            sim_s = float(t[-1] - t[0] + dt) if len(t) else 0.0
-            events = -1
-            if ep.event_frame is not None:
-                events = 0
-                for s in range(0, len(ep), 256):
-                    events += int(ep.event_frame[s:s + 256].sum(dtype=np.int64))
-            finite = np.isfinite(y).all(axis=1)
-            eps.append(EpisodeStats(name, len(ep), sim_s, int(finite.sum()), events,
-                                    y[finite].mean(axis=0) if finite.any()
-                                    else np.full(y.shape[1], np.nan),
-                                    conditions=dict(ep.attrs.get("conditions") or {})))
-            if ep.task == "nav" and finite.any():
-                eps[-1].mean_abs_v = float(np.abs(y[finite, 0]).mean())
-            if "robot" in ep.truth and len(t) > 1:
-                xy = ep.truth["robot"][:, :2]
-                step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-                ok = np.isfinite(step) & (np.diff(t) > 0)
-                if ok.any():
-                    eps[-1].robot_speed = float(step[ok].sum() / np.diff(t)[ok].sum())
-            targets.append(y[finite])
-    st = DatasetStats(root, task or "nav", eps)
+    if not root.is_dir():
+        raise ValueError(f"{root}: no such dataset folder")
+    task, targets, eps, bad = None, [], [], []
+    for entry in episode_entries(root):
+        name = entry["file"]
+        why = episode_problem(root / name, entry)
+        if why:
+            bad.append(f"{name}: {why}")
+            continue
+        try:
+            ep_stats = _episode_stats(root / name)
+        except (FileUnreadable, FileNotFoundError) as exc:
+            bad.append(f"{name}: {exc}")
+            continue
+        task = task or ep_stats[0]
+        eps.append(ep_stats[1])
+        targets.append(ep_stats[2])
+    st = DatasetStats(root, task or "nav", eps, damaged=bad)
     st.targets = np.concatenate(targets) if targets else np.zeros((0, 2), np.float32)
     return st
+
+
+def _episode_stats(path: Path) -> tuple[str, EpisodeStats, np.ndarray]:
+    """(task, the episode's statistics, its finite targets) of one episode file."""
+    with open_episode(path) as ep:
+        y = ep.target[:]
+        t = ep.t_sim[:]
+        # an episode covers its frames' span plus one control period
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        sim_s = float(t[-1] - t[0] + dt) if len(t) else 0.0
+        events = -1
+        if ep.event_frame is not None:
+            events = 0
+            for s in range(0, len(ep), 256):
+                events += int(ep.event_frame[s:s + 256].sum(dtype=np.int64))
+        finite = np.isfinite(y).all(axis=1)
+        st = EpisodeStats(path.name, len(ep), sim_s, int(finite.sum()), events,
+                          y[finite].mean(axis=0) if finite.any()
+                          else np.full(y.shape[1], np.nan),
+                          conditions=dict(ep.attrs.get("conditions") or {}))
+        if ep.task == "nav" and finite.any():
+            st.mean_abs_v = float(np.abs(y[finite, 0]).mean())
+        if "robot" in ep.truth and len(t) > 1:
+            xy = ep.truth["robot"][:, :2]
+            step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+            ok = np.isfinite(step) & (np.diff(t) > 0)
+            if ok.any():
+                st.robot_speed = float(step[ok].sum() / np.diff(t)[ok].sum())
+        return ep.task, st, y[finite]
 
 
 def plot(st: DatasetStats, path: str | Path) -> None:
@@ -194,9 +223,22 @@ def plot(st: DatasetStats, path: str | Path) -> None:
 
 
 def cmd_stats(args) -> int:
-    st = collect(args.dir)
+    """Exit 0; 1 when an episode is damaged (named, left out of the figures); 2 when the
+    folder is not a dataset or the plot may not be written."""
+    import sys
+    from ..output_guard import check_output_file
+    try:
+        if args.plot:
+            check_output_file(args.plot, force=args.force)
+        st = collect(args.dir)
+    except (ValueError, OSError) as exc:
+        print(f"sebvs data stats: {exc}", file=sys.stderr)
+        return 2
     print(st.summary())
     if args.plot:
         plot(st, args.plot)
         print(f"plot: {args.plot}")
-    return 0
+    for line in st.damaged:
+        print(f"sebvs data stats: {line} (left out; `sebvs data check {args.dir}`)",
+              file=sys.stderr)
+    return 1 if st.damaged else 0

@@ -9,15 +9,20 @@ import sys
 from .params import PRESETS
 
 
+FORCE_HELP = "replace OUT if it exists (never an input, an episode or a dataset's index)"
+
+
 def _cmd_v2e(args) -> int:
+    from ..output_guard import check_output_file
     from .convert import convert
     from .params import preset
     try:
+        check_output_file(args.out, inputs=[args.input], force=args.force)
         overrides = {k: v for k, v in (("seed", args.seed), ("max_gap_s", args.max_gap_s))
                      if v is not None}
         params = preset(args.preset, **overrides)
         info = convert(args.input, args.out, params, fps=args.fps, progress=not args.quiet)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:
         print(f"sebvs v2e: {exc}", file=sys.stderr)
         return 2
     print(json.dumps(info))
@@ -25,8 +30,10 @@ def _cmd_v2e(args) -> int:
 
 
 def _cmd_events_show(args) -> int:
+    from ..output_guard import check_output_file
     from .render import render_file
     try:
+        check_output_file(args.out, inputs=[args.file], force=args.force)
         render_file(args.file, args.out, n=args.frames, window_ms=args.window_ms)
     except (ValueError, OSError, ImportError) as exc:      # ImportError: a missing extra
         print(f"sebvs events show: {exc}", file=sys.stderr)
@@ -37,8 +44,10 @@ def _cmd_events_show(args) -> int:
 
 def _cmd_events_export(args) -> int:
     from ..extras import MissingExtra
+    from ..output_guard import check_output_file
     from .export import export_events
     try:
+        check_output_file(args.out, inputs=[args.file], force=args.force)
         info = export_events(args.file, args.out, args.format, progress=not args.quiet)
     except (ValueError, OSError, MissingExtra) as exc:
         print(f"sebvs events export: {exc}", file=sys.stderr)
@@ -61,6 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="frames further apart restart the sensor (default 10; raise it for "
                         "slow time-lapse folders)")
     v.add_argument("--quiet", action="store_true", help="no progress bar")
+    v.add_argument("--force", action="store_true", help=FORCE_HELP)
     v.set_defaults(func=_cmd_v2e)
 
     e = sub.add_parser("events", help="event file tools: show, export",
@@ -77,6 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--out", required=True, help="PNG file")
     s.add_argument("--frames", type=int, default=6)
     s.add_argument("--window-ms", type=float, default=33.0)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(func=_cmd_events_show)
     x = esub.add_parser("export", help="write an event file as AEDAT4 or common HDF5",
                         description="Write the events of FILE (any layout `events show` "
@@ -94,4 +105,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     x.add_argument("--format", choices=("aedat4", "h5"), default=None,
                    help="output format (default: from the --out suffix)")
     x.add_argument("--quiet", action="store_true", help="no progress bar")
+    x.add_argument("--force", action="store_true", help=FORCE_HELP)
     x.set_defaults(func=_cmd_events_export)

@@ -1,6 +1,7 @@
 """Offline conversion: a video file or an image folder to an HDF5 event file."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Iterator
 
@@ -61,6 +62,10 @@ def convert(source: str | Path, out: str | Path, params: EmulatorParams,
     """Emulate events for every frame of ``source`` and write them to ``out``."""
     frames, count = frames_of(Path(source), fps)
     emu = EventEmulator(params)
+    out = Path(out)
+    # written beside and renamed at the end: an interrupted conversion leaves the file it
+    # was told to replace (--force) as it was, never half of a new one
+    partial = out.with_name(out.stem + ".partial" + out.suffix)
     writer = None
     n_frames = 0
     try:
@@ -69,14 +74,19 @@ def convert(source: str | Path, out: str | Path, params: EmulatorParams,
             events = emu.step(frame, t_ns)
             if writer is None:
                 h, w = emu.shape
-                writer = EventFileWriter(out, w, h, {"emulator": params.to_dict(),
-                                                     "source": str(source)})
+                writer = EventFileWriter(partial, w, h, {"emulator": params.to_dict(),
+                                                         "source": str(source)})
             writer.append(events)
             n_frames += 1
-    finally:
         if writer is not None:
             writer.close()
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        partial.unlink(missing_ok=True)
+        raise
     if writer is None:
         raise ValueError(f"{source}: no frames")
+    os.replace(partial, out)
     return {"frames": n_frames, "events": writer.count, "gap_restarts": emu.gap_restarts,
             "out": str(out)}

@@ -21,6 +21,8 @@ from typing import Iterator
 import h5py
 import numpy as np
 
+from ..dataset_files import verify_file
+from ..h5named import named, open_h5
 from .emulator import EVENT_DTYPE
 from .eventsource import CHUNK, EventFile
 
@@ -42,7 +44,7 @@ def detect_format(path: str | Path) -> str:
     if head.startswith(b"#!AER-DAT"):
         raise ValueError(f"{p}: an AEDAT file older than version 4; convert it with DV first")
     if h5py.is_hdf5(p):
-        with h5py.File(p, "r") as f:
+        with open_h5(p) as f:
             has_events = all(f"events/{k}" in f for k in ("x", "y", "t", "p"))
             if "rgb" in f:
                 if has_events and "events/offset" in f:
@@ -64,6 +66,11 @@ def _attrs(f: h5py.File) -> dict:
             for k, v in f.attrs.items()}
 
 
+def _named_events(f: h5py.File) -> dict:
+    """events/x, y, t, p of ``f``, their failed reads naming the file (sebvs/h5named.py)."""
+    return {k: named(f[f"events/{k}"]) for k in ("x", "y", "t", "p")}
+
+
 def _size_from_events(chunks: Iterator[np.ndarray]) -> tuple[int, int]:
     """(width, height) = 1 + the largest x and y (DSEC files do not store the size)."""
     w = h = 0
@@ -79,7 +86,7 @@ class H5EventFile(EventFile):
     def __init__(self, path: Path, fmt: str):
         super().__init__(path)
         self.format = fmt
-        self.file = h5py.File(path, "r")
+        self.file = open_h5(path)
         self.attrs = _attrs(self.file)
         self.count = int(self.file["events/t"].shape[0])
         if fmt == "common-h5":
@@ -93,13 +100,13 @@ class H5EventFile(EventFile):
 
     @property
     def time_range_ns(self) -> tuple[int, int]:
-        t = self.file["events/t"]
+        t = named(self.file["events/t"])
         if not self.count:
             return 0, 0
         return ((int(t[0]) + self.offset_us) * 1000, (int(t[-1]) + self.offset_us) * 1000)
 
     def _slice(self, lo: int, hi: int) -> np.ndarray:
-        g = self.file["events"]
+        g = _named_events(self.file)
         ev = np.zeros(max(0, hi - lo), EVENT_DTYPE)
         ev["x"], ev["y"] = g["x"][lo:hi], g["y"][lo:hi]
         ev["t"] = (g["t"][lo:hi].astype(np.int64) + self.offset_us) * 1000
@@ -113,7 +120,7 @@ class H5EventFile(EventFile):
     def read(self, t0_ms: float | None = None, t1_ms: float | None = None) -> np.ndarray:
         # ms_to_idx counts milliseconds from the offset, which both writers set to the
         # first event: a window reads only its own events
-        idx = self.file["ms_to_idx"][:] if "ms_to_idx" in self.file else None
+        idx = named(self.file["ms_to_idx"])[:] if "ms_to_idx" in self.file else None
         if idx is None or not len(idx):
             return super().read(t0_ms, t1_ms)
         lo = int(idx[min(int(t0_ms), len(idx) - 1)]) if t0_ms is not None else 0
@@ -131,7 +138,7 @@ class EpisodeEventFile(EventFile):
 
     def __init__(self, path: Path):
         super().__init__(path)
-        self.file = h5py.File(path, "r")
+        self.file = open_h5(path)
         self.attrs = _attrs(self.file)
         self.count = int(self.file["events/t"].shape[0])
         sensor = self.attrs.get("event_sensor")
@@ -142,11 +149,11 @@ class EpisodeEventFile(EventFile):
 
     @property
     def time_range_ns(self) -> tuple[int, int]:
-        t = self.file["events/t"]
+        t = named(self.file["events/t"])
         return (int(t[0]), int(t[-1])) if self.count else (0, 0)
 
     def chunks(self, size: int = CHUNK) -> Iterator[np.ndarray]:
-        g = self.file["events"]
+        g = _named_events(self.file)
         for lo in range(0, self.count, size):
             hi = min(lo + size, self.count)
             ev = np.zeros(hi - lo, EVENT_DTYPE)
@@ -167,6 +174,8 @@ def open_events(path: str | Path) -> EventFile:
         from .aedat4 import Aedat4EventFile
         return Aedat4EventFile(p)
     if fmt == "episode":
+        # an episode still listed in its dataset's index must be the file it recorded
+        verify_file(p)
         return EpisodeEventFile(p)
     return H5EventFile(p, fmt)
 

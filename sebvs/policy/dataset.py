@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from sebvs.data.episode import Episode, open_episode
+from sebvs.dataset_files import verify_entries
 from sebvs.data.index import INDEX, DatasetIndex
 
 from .inputs import MODALITY_INPUTS, Normalisation, check_modality, model_input
@@ -40,8 +41,13 @@ TASKS = ("nav", "arm")
 OPEN_EPISODES = 512     # episode files a reader keeps open (least recently used released)
 
 
-def load_index(root: str | Path, task: str | None = None) -> list[dict]:
-    """The episodes listed in ``root``/index.json (refused if it holds another task)."""
+def load_index(root: str | Path, task: str | None = None, verify: bool = True,
+               progress: bool = False) -> list[dict]:
+    """The episodes listed in ``root``/index.json (refused if it holds another task).
+
+    With ``verify`` (the default) every listed file is first checked against the index's
+    size and sha256 (sebvs/dataset_files.py, remembered per process): a damaged episode
+    raises EpisodeDamaged naming it before a frame of it is read."""
     root = Path(root)
     if not (root / INDEX).exists():
         raise FileNotFoundError(f"{root}: no {INDEX} (record with `sebvs record`, or check "
@@ -49,6 +55,8 @@ def load_index(root: str | Path, task: str | None = None) -> list[dict]:
     episodes = DatasetIndex(root, task).episodes()
     if not episodes:
         raise ValueError(f"{root}/{INDEX} lists no episodes")
+    if verify:
+        verify_entries(root, episodes, progress)
     return episodes
 
 

@@ -59,6 +59,9 @@ def register(sub) -> None:
     v.add_argument("--web-port", type=_port, default=9090,
                    help="--serve: the web viewer's page (default 9090)")
     v.add_argument("--json", metavar="FILE", help="also write the summary as JSON")
+    v.add_argument("--force", action="store_true",
+                   help="replace the --save or --json file if it exists (never the episode "
+                        "or a dataset's files)")
     v.set_defaults(func=_cmd_view)
 
 
@@ -82,13 +85,18 @@ def _cmd_view(args) -> int:
     from .replay import NotAnEpisode
     from .sink import ViewerError
 
+    from sebvs.output_guard import OutputRefused, check_output_file
     episode = info = server = None
     try:
+        sources = [args.source] if _is_episode(args.source) else []
+        for out in (args.save, args.json):
+            if out:
+                check_output_file(out, inputs=sources, force=args.force)
         episode, info, name = _open_source(args.source)
         rec = rr.RecordingStream("sebvs")
         rec.send_recording_name(name)
         server = _open_sink(rec, args)
-    except (NotAnEpisode, RunInfoError, LookupError, ViewerError) as exc:
+    except (NotAnEpisode, RunInfoError, LookupError, ViewerError, OutputRefused) as exc:
         if episode is not None:
             episode.close()
         print(f"sebvs view: {exc}", file=sys.stderr)

@@ -22,16 +22,19 @@ class NotAnEpisode(ValueError):
 
 
 def open_for_replay(path: str | Path):
-    """The episode at ``path``, or NotAnEpisode naming the file and what is wrong."""
+    """The episode at ``path``, or NotAnEpisode naming the file and what is wrong (an
+    episode its dataset's index lists must still be the file the index recorded)."""
     from sebvs.data.episode import open_episode     # h5py: only when a file is replayed
+    from sebvs.dataset_files import EpisodeDamaged, verify_file
+    from sebvs.h5named import FileUnreadable
     path = Path(path)
     if not path.is_file():
         raise NotAnEpisode(f"{path}: no such file")
     try:
+        verify_file(path)
         return open_episode(path)
-    except KeyError as exc:          # an HDF5 file without an episode's datasets
-        raise NotAnEpisode(f"{path}: not an episode file (no {exc.args[0]!r} dataset)") \
-            from None
+    except (FileUnreadable, EpisodeDamaged) as exc:     # each names the file already
+        raise NotAnEpisode(str(exc)) from None
     except (OSError, ValueError) as exc:
         raise NotAnEpisode(f"{path}: not an episode file ({str(exc).splitlines()[0]})") \
             from None
