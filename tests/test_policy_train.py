@@ -4,6 +4,7 @@ import csv
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -401,7 +402,7 @@ def test_a_training_stopped_on_one_recording_resumes_on_the_same_one_made_again(
     import h5py
     import shutil
 
-    from tests.policy_data import recorded_again
+    from tests.policy_data import recorded_again, reindex
     kw = dict(epochs=3, batch=8, max_frames=48, seed=5, patience=10, progress=False,
               norm=Normalisation(size=32))
     train(gain_data, tmp_path / "whole", "nav", ["rgb+diff"], log=lambda s: None, **kw)
@@ -421,9 +422,115 @@ def test_a_training_stopped_on_one_recording_resumes_on_the_same_one_made_again(
     first = load_index(other)[0]["file"]
     with h5py.File(other / first, "r+") as f:
         f["action"][0, 0] += 0.5
+    reindex(other)              # another recording's index, not a damaged file
     (tmp_path / "cut2").mkdir()
     shutil.copy(tmp_path / "kept.resume.pt", tmp_path / "cut2" / "nav-rgb+diff.resume.pt")
     said = []
     train(other, tmp_path / "cut2", "nav", ["rgb+diff"], log=said.append, **kw)
     assert "  nav-rgb+diff.resume.pt: made by other settings or data; training from the " \
            "start" in said
+
+
+def test_a_training_whose_loss_goes_nan_stops_in_one_line_and_writes_no_checkpoint(
+        gain_data, tmp_path, capsys):
+    """lr 1e30 makes the loss NaN within two batches: `sebvs train` says where in one line,
+    exit status 2, and leaves no checkpoint (it wrote one of NaN weights before)."""
+    out = tmp_path / "out"
+    assert main(["train", "--task", "nav", "--modality", "event", "--data", str(gain_data),
+                 "--out", str(out), "--size", "32", "--epochs", "2", "--batch", "8",
+                 "--max-frames", "32", "--lr", "1e30", "--threads", "1",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert re.fullmatch(r"sebvs train: nav-event: training loss is nan at epoch 1, batch \d+; "
+                        r"stopped, no checkpoint written", err), err
+    assert not (out / "nav-event.pt").exists() and not (out / "nav-event.json").exists()
+    assert not (out / "nav-event.resume.pt").exists()      # no epoch ended
+
+
+class NaNLoss(torch.nn.MSELoss):
+    """MSE, NaN once NaNLoss.on is set: for training batches, or for validation ones."""
+    on = False
+
+    def __init__(self, validation: bool = False):
+        super().__init__()
+        self.validation = validation
+
+    def forward(self, pred, target):
+        loss = super().forward(pred, target)
+        if NaNLoss.on and torch.is_grad_enabled() != self.validation:
+            return loss * math.nan
+        return loss
+
+
+def nan_from_epoch_2(line):
+    if line.startswith("  epoch 1:"):
+        NaNLoss.on = True
+
+
+@pytest.mark.parametrize("validation", [False, True], ids=["training", "validation"])
+def test_a_loss_gone_nan_keeps_the_earlier_checkpoint_and_a_finite_resume_state(
+        gain_data, tmp_path, monkeypatch, validation):
+    """Trained again into a directory with a good checkpoint, a run whose (training or
+    validation) loss goes NaN in epoch 2 leaves that checkpoint, its config and its
+    losses as they were, and the resume state of epoch 1, finite, to go on from."""
+    from sebvs.policy.resume import first_non_finite
+    from sebvs.policy.train import TrainingDiverged
+    kw = dict(epochs=2, batch=8, max_frames=32, seed=1, patience=10,
+              norm=Normalisation(size=32), progress=False)
+    train(gain_data, tmp_path, "nav", ["event"], log=lambda s: None, **kw)
+    names = ("nav-event.pt", "nav-event.json", "nav-event-losses.csv")
+    before = [(tmp_path / n).read_bytes() for n in names]
+    monkeypatch.setattr(torch.nn, "MSELoss", lambda: NaNLoss(validation))
+    monkeypatch.setattr(NaNLoss, "on", False)
+    kind = "validation" if validation else "training"
+    with pytest.raises(TrainingDiverged, match=rf"^nav-event: {kind} loss is nan at epoch 2, "
+                                               rf"batch 1; stopped, no checkpoint written$"):
+        train(gain_data, tmp_path, "nav", ["event"], log=nan_from_epoch_2, **kw)
+    assert [(tmp_path / n).read_bytes() for n in names] == before
+    state = torch.load(tmp_path / "nav-event.resume.pt", weights_only=True)
+    assert state["epoch"] == 1 and first_non_finite(state) is None
+
+
+def test_a_weight_gone_nan_with_a_finite_loss_stops_the_training(gain_data, tmp_path,
+                                                                 monkeypatch):
+    """A BatchNorm statistic of the conv stem is not used by a training pass, so the loss
+    never sees it go NaN: the check of the weights after each epoch does."""
+    import sebvs.policy.train as train_module
+    from sebvs.policy.train import TrainingDiverged
+
+    class Poison:
+        """Stands for ZeroSubnormals (called after each step): NaNs a running mean."""
+        total = 0
+
+        def __init__(self, model, optimizer):
+            self.model = model
+
+        def __call__(self):
+            self.model.embed.net[1].running_mean.fill_(math.nan)
+
+    monkeypatch.setattr(train_module, "ZeroSubnormals", Poison)
+    with pytest.raises(TrainingDiverged, match=r"^nav-rgb: weight embed.net.1.running_mean is "
+                                               r"not finite after epoch 1; stopped, no "
+                                               r"checkpoint written$"):
+        train(gain_data, tmp_path, "nav", ["rgb"], epochs=2, batch=8, max_frames=32,
+              stem="conv", zero_subnormals=True, norm=Normalisation(size=32), **QUIET)
+    assert list(tmp_path.glob("nav-rgb*")) == []
+
+
+def test_a_non_finite_resume_state_is_neither_written_nor_continued(tmp_path):
+    from sebvs.policy.resume import NonFiniteState, load_state, save_state
+    path = tmp_path / "nav-event.resume.pt"
+    good = {"fingerprint": "k", "epoch": 1, "model": {"w": torch.ones(2)},
+            "optimizer": {"state": {0: {"exp_avg_sq": torch.ones(2)}}}}
+    save_state(path, good)
+    bad = {**good, "epoch": 2,
+           "optimizer": {"state": {0: {"exp_avg_sq": torch.tensor([1.0, math.inf])}}}}
+    with pytest.raises(NonFiniteState, match="not written, optimizer/state/0/exp_avg_sq is "
+                                             "not finite"):
+        save_state(path, bad)
+    assert load_state(path, "k")["epoch"] == 1              # the previous epoch's is kept
+    torch.save(bad, path)                                   # as code before the check did
+    said = []
+    assert load_state(path, "k", said.append) is None
+    assert said == ["  nav-event.resume.pt: optimizer/state/0/exp_avg_sq is not finite; "
+                    "training from the start"]

@@ -3,7 +3,15 @@
 The weights are a plain state_dict saved with torch.save and read back with
 ``torch.load(weights_only=True)``: no pickled code runs when a checkpoint is opened.
 Everything needed to rebuild the model and prepare its input (task, modality, size,
-channels, normalisation) is in the JSON config.
+channels, normalisation) is in the JSON config, which is validated before anything is
+allocated from it (checkpoint_schema.py).
+
+The state_dict also holds one entry that is not a weight, ``CONFIG_RECORD``: the
+architecture and input fields of the config it was saved with, as UTF-8 JSON in a uint8
+tensor. The input side, the modality and the normalisation change no weight's shape (the
+positional table is rebuilt from the size, not stored), so a config edited to 320 px
+beside weights trained at 160 px would otherwise load and run, silently, on inputs the
+model never saw. Checkpoints saved before the record existed load without that check.
 """
 from __future__ import annotations
 
@@ -11,10 +19,17 @@ import json
 import pickle
 from pathlib import Path
 
-from .inputs import Normalisation, channel_names, channels, check_modality
-from .resume import RESUME_SUFFIX
+from sebvs.runtime.params import short_repr
 
-CONFIG_VERSION = 1
+from .checkpoint_schema import (CONFIG_VERSION, MAX_CONFIG_BYTES, check_consistency,
+                                check_fields, validate_config)
+from .inputs import Normalisation, channel_names, channels
+from .resume import RESUME_SUFFIX, first_non_finite
+
+# the state_dict key of the config record; no module attribute can be named so (a dot-free
+# name with a leading underscore is not a parameter or buffer path of ERP)
+CONFIG_RECORD = "_sebvs_config"
+RECORDED = ("task", "modality", "size", "stem", "channels", "channel_order", "normalisation")
 
 
 class CheckpointError(ValueError):
@@ -33,12 +48,33 @@ def checkpoints_in(directory: str | Path) -> list[Path]:
 
 
 def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
-    """Write the state_dict and its config; returns the .pt path."""
+    """Write the state_dict (with its config record) and its config; returns the .pt path.
+
+    Refused, with nothing written and an earlier checkpoint of that name left as it was,
+    when a weight is not finite or the config does not describe the model.
+    """
     import torch
     pt, js = checkpoint_paths(out_dir, config["task"], config["modality"])
+    written = {"version": CONFIG_VERSION, **config}
+    try:    # a checkpoint that load_checkpoint would refuse is not written
+        validate_config(written, js)
+    except ValueError as exc:
+        raise CheckpointError(f"not written: {exc}") from None
+    state = model.state_dict()
+    bad = first_non_finite(state)
+    if bad is not None:
+        raise CheckpointError(f"checkpoint {pt}: not written, weight {bad} is not finite")
+    # what the model itself says it is, where it says it (ERP does), over the config's word
+    for key, attr in (("task", "task"), ("size", "size"), ("stem", "stem"),
+                      ("channels", "in_channels")):
+        if hasattr(model, attr) and key in config and config[key] != getattr(model, attr):
+            raise CheckpointError(f"checkpoint {pt}: not written, config {key} "
+                                  f"{config[key]!r} is not the model's {getattr(model, attr)!r}")
+    record = json.dumps({k: config[k] for k in RECORDED if k in config}, sort_keys=True)
+    state[CONFIG_RECORD] = torch.tensor(list(record.encode()), dtype=torch.uint8)
     pt.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(model.state_dict(), pt)
-    js.write_text(json.dumps({"version": CONFIG_VERSION, **config}, indent=2) + "\n")
+    torch.save(state, pt)
+    js.write_text(json.dumps(written, indent=2) + "\n")
     return pt
 
 
@@ -51,11 +87,29 @@ def model_config(task: str, modality: str, norm: Normalisation, stem: str = "pat
 
 
 def read_config(pt_path: str | Path) -> dict:
+    """The JSON object beside a checkpoint, as it is: read, not validated (its readers
+    want a field or two; load_checkpoint validates the whole before building a model).
+
+    Parameters:
+        pt_path: the checkpoint's .pt path; its config is the .json beside it.
+
+    Returns:
+        The config. FileNotFoundError when it is missing; CheckpointError, naming the
+        file, when it is over MAX_CONFIG_BYTES, not UTF-8 JSON, too deeply nested for the
+        parser, or not an object.
+    """
     js = Path(pt_path).with_suffix(".json")
     if not js.exists():
         raise FileNotFoundError(f"checkpoint {pt_path}: its config {js.name} is missing")
+    with open(js, "rb") as f:
+        raw = f.read(MAX_CONFIG_BYTES + 1)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise CheckpointError(f"checkpoint config {js}: over {MAX_CONFIG_BYTES:,} bytes, "
+                              f"not a config")
     try:
-        cfg = json.loads(js.read_text(encoding="utf-8"))
+        cfg = json.loads(raw.decode("utf-8"))
+    except RecursionError:
+        raise CheckpointError(f"checkpoint config {js}: too deeply nested to read") from None
     except ValueError as exc:   # not UTF-8, or not JSON
         raise CheckpointError(f"checkpoint config {js}: unreadable ({_first_line(exc)})") \
             from None
@@ -69,40 +123,67 @@ def _first_line(exc: BaseException, limit: int = 200) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
+def _read_record(state: dict, pt_path: Path) -> dict | None:
+    """Pop the config record out of a state_dict -> the fields it was saved with, or None
+    for a checkpoint saved before records existed."""
+    import torch
+    record = state.pop(CONFIG_RECORD, None)
+    if record is None:
+        return None
+    try:
+        if not (isinstance(record, torch.Tensor) and record.dtype == torch.uint8
+                and record.dim() == 1 and record.numel() <= MAX_CONFIG_BYTES):
+            raise ValueError("not a short uint8 vector")
+        fields = json.loads(bytes(record.tolist()).decode("utf-8"))
+        if not isinstance(fields, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, RecursionError) as exc:
+        raise CheckpointError(f"checkpoint {pt_path}: damaged, its {CONFIG_RECORD} entry is "
+                              f"unreadable ({_first_line(exc)})") from None
+    return fields
+
+
+def _check_record(record: dict, fields: dict, pt_path: Path, js: Path) -> None:
+    """CheckpointError naming the first key where the config (validated ``fields``) says
+    other than the config the weights were saved with (``record``)."""
+    # in RECORDED's order: a modality named wrong says more than the channel names it implies
+    pairs = [(k, fields[k], record[k]) for k in RECORDED if k in record and k != "normalisation"]
+    if isinstance(record.get("normalisation"), dict):
+        pairs += [(f"normalisation.{k}", fields["normalisation"].get(k), v)
+                  for k, v in record["normalisation"].items()]
+    for key, now, then in pairs:
+        if now != then:
+            raise CheckpointError(
+                f"checkpoint {pt_path}: weights do not match the config (task "
+                f"{fields['task']}, modality {fields['modality']}, size {fields['size']}, "
+                f"stem {fields['stem']}): {key} is {short_repr(now)} in {js.name}, but the "
+                f"weights were saved with {key} {short_repr(then)}")
+
+
 def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
     """Rebuild an ERP from a checkpoint -> (model in eval mode, config dict, Normalisation).
 
-    ``expect`` (e.g. {"task": "nav", "modality": "event"}) is checked against the config
-    first; any difference, or weights that do not fit the architecture the config
-    describes, raises ValueError naming the file and the field.
+    Each field of the config is type- and range-checked first (checkpoint_schema), so that
+    no hostile or mistaken value reaches torch; ``expect`` (e.g. {"task": "nav",
+    "modality": "event"}) is then checked against it; the weights are read, and the config
+    compared with the one they were saved with (CONFIG_RECORD), its fields with each other
+    and, by load_state_dict, the weights' shapes with the architecture it describes. Any
+    refusal is a CheckpointError (a ValueError) of one line naming the file and the key.
     """
     import torch
 
     from .model import ERP
     pt_path = Path(pt_path)
+    js = pt_path.with_suffix(".json")
     cfg = read_config(pt_path)
+    try:    # each field in its type and range: nothing below allocates more than they say
+        fields, norm = check_fields(cfg, js)
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from None
     for key, want in (expect or {}).items():
         if cfg.get(key) != want:
-            raise CheckpointError(f"checkpoint {pt_path}: config has {key}={cfg.get(key)!r}, "
-                                  f"expected {want!r}")
-    try:
-        check_modality(cfg["modality"])
-        norm = Normalisation.from_dict(cfg["normalisation"])
-        want = channels(cfg["modality"], norm.event_bins)
-        if cfg["channels"] != want:
-            raise CheckpointError(f"checkpoint {pt_path}: {cfg['channels']} channels do not "
-                                  f"match modality {cfg['modality']!r} with "
-                                  f"{norm.event_bins} event bin(s) ({want})")
-        if norm.size != cfg["size"]:
-            raise CheckpointError(f"checkpoint {pt_path}: normalisation size {norm.size} != "
-                                  f"size {cfg['size']}")
-        # configs written before the conv stem existed have no "stem": theirs is the patch one
-        model = ERP(cfg["task"], cfg["channels"], cfg["size"], stem=cfg.get("stem", "patch"))
-    except CheckpointError:
-        raise
-    except (KeyError, TypeError, ValueError) as exc:   # a field missing or of the wrong kind
-        raise CheckpointError(f"checkpoint config {pt_path.with_suffix('.json')}: "
-                              f"{type(exc).__name__}: {_first_line(exc)}") from None
+            raise CheckpointError(f"checkpoint {pt_path}: config has {key}="
+                                  f"{short_repr(cfg.get(key))}, expected {want!r}")
     try:
         state = torch.load(pt_path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
@@ -115,12 +196,25 @@ def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
     if not isinstance(state, dict):
         raise CheckpointError(f"checkpoint {pt_path}: holds a {type(state).__name__}, "
                               f"not a state_dict")
+    # before the fields are checked against each other: where a config was edited away
+    # from its weights, what the weights were saved with says more than an inconsistency
+    record = _read_record(state, pt_path)
+    if record is not None:
+        _check_record(record, fields, pt_path, js)
+    try:
+        check_consistency(fields, norm, js)
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from None
+    describes = (f"task {fields['task']}, modality {fields['modality']}, size "
+                 f"{fields['size']}, stem {fields['stem']}")
+    try:
+        model = ERP(fields["task"], fields["channels"], fields["size"], stem=fields["stem"])
+    except ValueError as exc:   # validated above: a stem that refuses these channels
+        raise CheckpointError(f"checkpoint config {js}: {_first_line(exc)}") from None
     try:
         model.load_state_dict(state)
     except (RuntimeError, TypeError, AttributeError) as exc:
         raise CheckpointError(f"checkpoint {pt_path}: weights do not match the config "
-                              f"(task {cfg['task']}, modality {cfg['modality']}, size "
-                              f"{cfg['size']}, stem {cfg.get('stem', 'patch')}): "
-                              f"{_first_line(exc)}") from None
+                              f"({describes}): {_first_line(exc)}") from None
     model.eval()
     return model, cfg, norm

@@ -26,12 +26,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import asdict, dataclass
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
 
 from sebvs.dvs.emulator import linlog
 from sebvs.dvs.params import PRESETS
+from sebvs.runtime.params import Range, clip, coerce_param, param_fields, short_repr
 
 MODALITIES = ("rgb", "event", "rgb+event")
 # controls: not the paper's modalities, but inputs that test a claim about them. rgb+diff
@@ -46,6 +48,10 @@ MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "
 
 # input sides by name: the CPU default (100 tokens) and the paper's (1600, for GPUs)
 SIZE_PRESETS = {"cpu": 160, "paper": 640}
+# the largest input side a Normalisation (and so a checkpoint) may name: twice the paper's.
+# The positional table grows as (S/16)^2 and attention as its square, so a side far beyond
+# it is a typo or a hostile config, not a model (48000 px took 2.3 GB before failing)
+MAX_SIZE = 1280
 
 
 def parse_size(value: str | int) -> int:
@@ -96,24 +102,57 @@ def check_modality(modality: str) -> None:
 
 @dataclass(frozen=True)
 class Normalisation:
-    """How raw frames become model input; recorded in the checkpoint config."""
-    size: int = 160                 # model input side S
-    rgb_scale: float = 1.0 / 255.0  # rgb uint8 -> [0, 1]
-    event_clip: int = 8             # event counts above this saturate (per time bin)
-    resize: str = "INTER_AREA"
-    event_bins: int = 1             # time bins per polarity: 1 = the paper's counts
+    """How raw frames become model input; recorded in the checkpoint config.
+
+    Every field is type- and range-checked on construction (the topology parameters'
+    ``Annotated[T, Range(...)]`` scheme, sebvs/runtime/params.py): a checkpoint's config
+    is read back into one, and a NaN scale there would make every action NaN.
+    """
+    size: Annotated[int, Range(ge=1, le=MAX_SIZE)] = 160        # model input side S
+    rgb_scale: Annotated[float, Range(gt=0, le=1)] = 1.0 / 255.0  # rgb uint8 -> [0, 1]
+    # event counts above this saturate (per time bin); a uint8 count cannot pass 255
+    event_clip: Annotated[int, Range(ge=1, le=255)] = 8
+    # the one resampling _resize does: a config naming another would be a lie
+    resize: Literal["INTER_AREA"] = "INTER_AREA"
+    # time bins per polarity: 1 = the paper's counts
+    event_bins: Annotated[int, Range(ge=1, le=64)] = 1
 
     def __post_init__(self):
-        if not isinstance(self.event_bins, int) or not 1 <= self.event_bins <= 64:
-            raise ValueError(f"event_bins must be an integer in 1..64, got {self.event_bins!r}")
+        for name, tp in _normalisation_fields().items():
+            # coerced back in: an int scale becomes the float that to_dict then records
+            object.__setattr__(self, name, coerce_param(tp, getattr(self, name), where=name))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Normalisation":
-        keys = ("size", "rgb_scale", "event_clip", "resize", "event_bins")
-        return cls(**{k: d[k] for k in keys if k in d})
+    def from_dict(cls, d: dict, where: str = "normalisation") -> "Normalisation":
+        """A Normalisation from its ``to_dict`` form (a key left out keeps its default:
+        older configs have no event_bins).
+
+        Parameters:
+            d: the table, e.g. a checkpoint config's "normalisation".
+            where: what the table is, for errors: each names ``<where>.<key>``.
+
+        Returns:
+            The Normalisation. ValueError, naming the key, for a table that is not one, an
+            unknown key, or a value of the wrong type or out of its range.
+        """
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}: expected a table, got {type(d).__name__} "
+                             f"{short_repr(d)}")
+        fields = _normalisation_fields()
+        unknown = sorted((k for k in d if k not in fields), key=str)
+        if unknown:
+            # a setting this code would not honour: the input would differ from training's
+            raise ValueError(f"{where}.{clip(str(unknown[0]), 80)}: unknown key (known: "
+                             f"{', '.join(fields)})")
+        return cls(**{k: coerce_param(fields[k], d[k], where=f"{where}.{k}") for k in d})
+
+
+@functools.cache
+def _normalisation_fields() -> dict:
+    return param_fields(Normalisation)
 
 
 def _resize(img: np.ndarray, size: int) -> np.ndarray:

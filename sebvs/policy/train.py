@@ -5,7 +5,9 @@
          Smooth L1, 10 epochs, batch 32, early stopping (patience 4 here: with 2, training
          would stop before the scheduler's first halving could ever act)
 
-The split is by episode. The weights of the best validation epoch are saved.
+The split is by episode. The weights of the best validation epoch are saved. A loss
+(every batch, training and validation) or a weight (after every epoch) gone NaN or
+infinite stops the training at once with one line (TrainingDiverged), nothing written.
 Outputs in ``out``: ``<task>-<modality>.pt`` + ``.json`` per variant,
 ``<task>-<modality>-losses.csv`` per variant and ``<task>-losses.png`` with every variant
 trained into that directory on one plot (the paper's Fig. 6).
@@ -21,12 +23,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .checkpoint import model_config, save_checkpoint
+# defined beside the checkpoint schema, which checks a config's stem the same way
+from .checkpoint_schema import FUSION_STEMS, check_stem  # noqa: F401
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, available_memory,
                       content_digest, dataset_hash, event_frames_of, load_index,
                       split_episodes)
-from .inputs import (CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels,
-                     check_modality)
-from .resume import fingerprint, load_state, resume_path, save_state
+from .inputs import CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels
+from .resume import (NonFiniteState, first_non_finite, fingerprint, load_state, resume_path,
+                     save_state)
 from .subnormal import ZeroSubnormals
 
 
@@ -66,16 +70,18 @@ def paper_settings(task: str) -> TrainSettings:
     raise ValueError(f"unknown task {task!r} (nav, arm)")
 
 
-FUSION_STEMS = ("dual", "gated")     # a stem per modality: rgb+event inputs only
+class TrainingDiverged(ValueError):
+    """A training whose loss or weights went NaN or infinite: stopped there, no checkpoint
+    written (an earlier one of that name is left as it was). A ValueError, so that
+    `sebvs train` says it in one line with exit status 2."""
 
 
-def check_stem(stem: str, modality: str) -> None:
-    """ValueError unless ``stem`` can embed ``modality``'s input: the dual and gated stems
-    fuse rgb with events, so they take rgb+event alone."""
-    check_modality(modality)
-    if stem in FUSION_STEMS and modality != "rgb+event":
-        raise ValueError(f"the {stem} stem fuses rgb and event planes: it needs modality "
-                         f"rgb+event, not {modality}")
+class NonFiniteLoss(ValueError):
+    """Raised by `_epoch` at the first batch (counted from 1) whose loss is not finite."""
+
+    def __init__(self, batch: int, value: float):
+        super().__init__(f"loss is {value} at batch {batch}")
+        self.batch, self.value = batch, value
 
 
 def _seed_everything(seed: int) -> None:
@@ -98,7 +104,9 @@ def _collate(batch):
 def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True,
            device: str = "cpu", after_step=None):
     """One pass; trains if an optimizer is given, calling ``after_step()`` (if given) after
-    each of its steps. Returns the mean loss per sample."""
+    each of its steps. Returns the mean loss per sample; raises NonFiniteLoss at the first
+    batch whose loss is NaN or infinite (the value is read for the mean anyway, so the
+    check costs nothing; once one is, every later step only spreads it)."""
     import torch
     from tqdm import tqdm
     training = optimizer is not None
@@ -107,7 +115,7 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
     bar = tqdm(loader, desc=desc, unit="batch", leave=False, disable=not progress,
                dynamic_ncols=True)
     with torch.set_grad_enabled(training):
-        for x, y in bar:
+        for batch, (x, y) in enumerate(bar, 1):
             x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
             loss = criterion(model.predict_loss_space(x), model.loss_space(y))
             if training:
@@ -116,7 +124,11 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
                 optimizer.step()
                 if after_step is not None:
                     after_step()
-            total += loss.item() * len(x)
+            value = loss.item()
+            if not math.isfinite(value):
+                bar.close()
+                raise NonFiniteLoss(batch, value)
+            total += value * len(x)
             n += len(x)
             bar.set_postfix(loss=f"{total / n:.4g}")
     bar.close()
@@ -232,13 +244,21 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
             seconds_before, resumed = state["seconds"], [*state["resumed"], state["epoch"]]
             log(f"  resuming after epoch {state['epoch']} ({state_file.name})")
         t0 = time.monotonic()
+        name = f"{s.task}-{modality}"
         for epoch in range(first, s.epochs + 1):
-            tag = f"{s.task}-{modality} {epoch}/{s.epochs}"
+            tag = f"{name} {epoch}/{s.epochs}"
             lr = optimizer.param_groups[0]["lr"]
             zeroed_before, epoch_t0 = (zeroer.total if zeroer else 0), time.monotonic()
-            tr = _epoch(model, train_loader, criterion, optimizer, f"{tag} train", progress,
-                        s.device, after_step=zeroer)
-            va = _epoch(model, val_loader, criterion, None, f"{tag} val", progress, s.device)
+            tr = _finite_epoch(name, "training", epoch, model, train_loader, criterion,
+                               optimizer, f"{tag} train", progress, s.device, after_step=zeroer)
+            # a last step can make a weight NaN with its batch's loss still finite; a
+            # buffer (BatchNorm statistics) can go with no training loss seeing it at all
+            broken = first_non_finite(model.state_dict())
+            if broken is not None:
+                raise TrainingDiverged(f"{name}: weight {broken} is not finite after epoch "
+                                       f"{epoch}; stopped, no checkpoint written")
+            va = _finite_epoch(name, "validation", epoch, model, val_loader, criterion, None,
+                               f"{tag} val", progress, s.device)
             rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
                          "val_loss": va, "lr": lr})
             log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}  "
@@ -252,18 +272,22 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
                 bad += 1
             if scheduler is not None:
                 scheduler.step(va)
-            save_state(state_file, {
-                "fingerprint": key, "epoch": epoch, "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict() if scheduler is not None else None,
-                "generator": gen.get_state(), "torch_rng": torch.get_rng_state(),
-                "rows": rows, "best": best, "best_state": best_state, "bad": bad,
-                "seconds": seconds_before + time.monotonic() - t0, "resumed": resumed})
+            try:    # the weights are finite (above); Adam's moments need not be
+                save_state(state_file, {
+                    "fingerprint": key, "epoch": epoch, "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict() if scheduler is not None else None,
+                    "generator": gen.get_state(), "torch_rng": torch.get_rng_state(),
+                    "rows": rows, "best": best, "best_state": best_state, "bad": bad,
+                    "seconds": seconds_before + time.monotonic() - t0, "resumed": resumed})
+            except NonFiniteState as exc:
+                raise TrainingDiverged(f"{name}: after epoch {epoch}, {exc}; stopped, no "
+                                       f"checkpoint written") from None
             if bad >= s.patience:
                 log(f"  early stop: no better validation loss for {bad} epochs")
                 break
         model.cpu()
-        if best_state is not None:     # else every validation loss was NaN: keep the last
+        if best_state is not None:     # else no epoch ran (resumed past the last)
             model.load_state_dict(best_state)
     finally:
         torch.use_deterministic_algorithms(prev_det)
@@ -292,6 +316,21 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
     write_losses_csv(rows, out / f"{s.task}-{modality}-losses.csv")
     state_file.unlink(missing_ok=True)
     return config
+
+
+def _finite_epoch(name: str, kind: str, epoch: int, *args, **kwargs) -> float:
+    """`_epoch`, its mean loss checked too: TrainingDiverged, in one line, naming the
+    variant, the pass ("training" or "validation"), the epoch and the batch, when a loss
+    is not finite."""
+    try:
+        mean = _epoch(*args, **kwargs)
+    except NonFiniteLoss as exc:
+        raise TrainingDiverged(f"{name}: {kind} loss is {exc.value} at epoch {epoch}, batch "
+                               f"{exc.batch}; stopped, no checkpoint written") from None
+    if not math.isfinite(mean):     # finite batches whose sum overflowed
+        raise TrainingDiverged(f"{name}: {kind} loss is {mean} at epoch {epoch} (the mean "
+                               f"over its batches); stopped, no checkpoint written")
+    return mean
 
 
 # Floors of the arm pose's standardisation scale: a dimension that hardly varies (roll and
