@@ -11,8 +11,11 @@ Output `state`    scene.state() arrays (qpos, mocap_pos, mocap_quat, ...), publi
                   control tick (global, counts across episodes); t_sim = simulated seconds
                   since the run started (monotonic across episodes).
 Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps;
-                  end also t_ep and outcome: scene.finish()'s result (the arm's grasp of
-                  its last command), {} after a divergence or a stop}.
+                  end also t_ep, outcome: scene.finish()'s result (the arm's grasp of
+                  its last command), {} after a divergence or a stop, and health: the
+                  episode's {commands, rejected, action_timeouts, deadline_misses}}.
+                  health counts the commands for the episode's ticks but its last: the
+                  last tick's command drives no step of it and may come after the end.
 
 Clock (DESIGN.md section 3):
   lockstep  after publishing control tick k the sim waits for the action with tick >= k
@@ -115,6 +118,12 @@ class Sim(Actor):
         self.t_offset = 0.0                 # t_sim at the current episode's start
         self.counts = {"steps": 0, "episodes": 0, "rejected": 0, "action_timeouts": 0,
                        "stale_actions": 0, "diverged": 0, "noised": 0}
+        # this episode's: the ticks of the commands checked and of those rejected, and
+        # the run's counters at its start (episode end meta "health")
+        self.ep_first_tick = 0
+        self.ep_checked: list[int] = []
+        self.ep_rejected: list[int] = []
+        self.ep_start: dict[str, int] = {"action_timeouts": 0, "deadline_misses": 0}
         self.log.info("sim: scene %s %s, integrator %s, dt %g s, %d steps/control, "
                       "%d steps/state, lockstep wait %s", p.scene, p.config, p.integrator,
                       self.dt, self.steps_per_control, self.steps_per_render,
@@ -148,6 +157,7 @@ class Sim(Actor):
         if self.lockstep_wait and tick < self.tick:
             self.counts["stale_actions"] += 1       # answer to a tick already stepped past
             return
+        self.ep_checked.append(tick)
         if not self.core.check_command(cmd):
             self._reject(cmd, tick, "missing, wrong shape or not finite")
         elif self.lockstep_wait:
@@ -160,6 +170,7 @@ class Sim(Actor):
 
     def _reject(self, cmd, tick: int, why: str) -> None:
         self.counts["rejected"] += 1
+        self.ep_rejected.append(tick)
         shown = None if cmd is None else np.asarray(cmd).tolist()
         self.log.error("command rejected at tick %d (%s): %r; keeping %s", tick, why, shown,
                        self.command.tolist())
@@ -231,6 +242,7 @@ class Sim(Actor):
         info = core.start_episode(self.seed, k)
         seed = info["seed"]
         self.pending = None
+        self._open_health()
         await self.emit("episode", meta={"event": "start", "reason": "", **info},
                         t_sim=self.t_offset, tick=self.tick + 1)
         pace = self._pace_factor()
@@ -280,13 +292,33 @@ class Sim(Actor):
         # after t_ep is taken: what finish() simulates (a grasp) is not episode time
         outcome = core.finish(reason)
         await self.emit("episode", meta={"event": "end", "reason": reason, "steps": step,
-                                         "t_ep": t_ep, "outcome": outcome, **info},
+                                         "t_ep": t_ep, "outcome": outcome,
+                                         "health": self._episode_health(), **info},
                         t_sim=self.t_offset + t_ep, tick=self.tick)
         self.telemetry("episode_end", episode=k, seed=seed, reason=reason, steps=step,
                        outcome=outcome.get("outcome", ""))
         self.log.info("episode %d (seed %d) ended: %s after %d steps%s", k, seed, reason, step,
                       f"; {outcome['outcome']}" if "outcome" in outcome else "")
         self.t_offset += t_ep
+
+    def _open_health(self) -> None:
+        self.ep_first_tick = self.tick + 1
+        self.ep_checked, self.ep_rejected = [], []
+        self.ep_start = {"action_timeouts": self.counts["action_timeouts"],
+                         "deadline_misses": self._misses()}
+
+    def _misses(self) -> int:
+        return self.deadlines.misses if self.deadlines is not None else 0
+
+    def _episode_health(self) -> dict:
+        """The episode's counters, over the commands for its ticks but the last (by tick,
+        not arrival: the same counts however late the chain answers)."""
+        first, last = self.ep_first_tick, self.tick
+        within = lambda ticks: sum(first <= t < last for t in ticks)   # noqa: E731
+        return {"commands": within(self.ep_checked), "rejected": within(self.ep_rejected),
+                "action_timeouts": self.counts["action_timeouts"]
+                - self.ep_start["action_timeouts"],
+                "deadline_misses": self._misses() - self.ep_start["deadline_misses"]}
 
     def _tick_published(self) -> None:
         missed = self.deadlines.published(self.tick, time.monotonic_ns())

@@ -7,7 +7,10 @@ Inputs  rgb      from the camera: only meta is read (truth, episode, t_ep, contr
                  inference_ms; the arm tracker also reads arrays["pose"]
         episode  from the sim: start / end with seed, config, reason and outcome
 Each finished episode is appended as one JSON line to `path` (so an interrupted evaluation
-keeps what it finished).
+keeps what it finished). Its "health" is the sim's counters from the end meta (commands,
+rejected, action_timeouts, deadline_misses) with the tracker's own over the same ticks
+(every tick but the last): actions (ticks with an action) and nonfinite_actions (ticks
+whose action held NaN or inf), so a policy that never acted is not read as a result.
 
 NavTracker   metrics over the whole episode and per modality segment (a live modality
              swap splits an episode), the centroid-error trace.
@@ -32,6 +35,7 @@ from sebvs.experts.arm import leading_poses
 from sebvs.runtime import Actor, Message, Range
 
 FINALIZE_AFTER_S = 1.0   # frames of an episode may trail its end message (they pass the camera)
+SIM_HEALTH = ("commands", "rejected", "action_timeouts", "deadline_misses")   # sim end meta
 
 
 class EpisodeTracker(Actor):
@@ -51,6 +55,7 @@ class EpisodeTracker(Actor):
         self.modality_at: dict[int, str] = {}              # tick -> modality that acted
         self.inference_ms: dict[int, float] = {}           # tick -> policy latency
         self.actions: dict[int, np.ndarray] = {}           # tick -> command (when kept)
+        self.nonfinite: set[int] = set()                   # ticks of a NaN / inf action
         self.episodes: dict[int, dict] = {}                # episode -> start/end meta
         self.finished: list[dict] = []
         self._timers: dict[int, asyncio.TimerHandle] = {}
@@ -99,6 +104,8 @@ class EpisodeTracker(Actor):
         self.modality_at[msg.tick] = msg.meta.get("modality", "expert")
         if "inference_ms" in msg.meta:
             self.inference_ms[msg.tick] = float(msg.meta["inference_ms"])
+        if not _finite(msg.arrays):
+            self.nonfinite.add(msg.tick)
         kept = self.keep_action(msg)
         if kept is not None:
             self.actions[msg.tick] = kept
@@ -111,7 +118,8 @@ class EpisodeTracker(Actor):
         if m.get("event") == "start":
             info.update(seed=m.get("seed"), start_tick=msg.tick, config=m.get("config", {}))
         elif m.get("event") == "end":
-            info.update(ended=True, reason=m.get("reason", ""), outcome=m.get("outcome", {}))
+            info.update(ended=True, reason=m.get("reason", ""), outcome=m.get("outcome", {}),
+                        health=m.get("health") or {})
             loop = asyncio.get_running_loop()
             self._timers[ep] = loop.call_later(FINALIZE_AFTER_S, self._finalize, ep)
 
@@ -140,10 +148,16 @@ class EpisodeTracker(Actor):
                   "reason": info.get("reason", ""), "ticks": len(rows),
                   **self.summarise(rows, segments, info),
                   "inference_ms": [self.inference_ms.pop(k) for k, _, _ in rows
-                                   if k in self.inference_ms]}
+                                   if k in self.inference_ms],
+                  "health": self._health(rows, info)}
         for k, _, _ in rows:
             self.modality_at.pop(k, None)
             self.actions.pop(k, None)
+            self.nonfinite.discard(k)
+        health = record["health"]
+        if health["nonfinite_actions"]:
+            self.log.warning("episode %s: %d of %d actions not finite", ep,
+                             health["nonfinite_actions"], health["actions"])
         self.finished.append(record)
         self.telemetry("episode_metrics", episode=ep, ticks=record["ticks"])
         if self.params.path:
@@ -151,6 +165,15 @@ class EpisodeTracker(Actor):
             path.parent.mkdir(parents=True, exist_ok=True)
             with open(path, "a") as f:
                 f.write(json.dumps(record) + "\n")
+
+    def _health(self, rows: list, info: dict) -> dict:
+        """The sim's counters and the actions seen, over the ticks but the last (the
+        sim's window: the last tick's action drives no step and may come after the run)."""
+        ticks = [k for k, _, _ in rows[:-1]]
+        sim = info.get("health") or {}
+        return {**{k: int(sim.get(k) or 0) for k in SIM_HEALTH},
+                "actions": sum(k in self.modality_at for k in ticks),
+                "nonfinite_actions": sum(k in self.nonfinite for k in ticks)}
 
     async def teardown(self) -> None:
         for ep in sorted(self.episodes):
@@ -205,6 +228,15 @@ class ArmTracker(EpisodeTracker):
             self.log.warning("episode %s: %d of %d ticks had no pose", info.get("seed"),
                              missing, len(rows))
         return summary
+
+
+def _finite(arrays: dict) -> bool:
+    """Every numeric array of an action holds finite values only."""
+    for a in arrays.values():
+        a = np.asarray(a)
+        if np.issubdtype(a.dtype, np.inexact) and not np.isfinite(a).all():
+            return False
+    return True
 
 
 def _rounded(x: float | None) -> float | None:

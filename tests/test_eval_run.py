@@ -51,6 +51,12 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
         assert (tmp_path / "eval" / png).stat().st_size > 5000
     saved = json.loads((tmp_path / "eval" / "results.json").read_text())
     assert len(saved["episodes"]) == 6
+    # every row healthy: each command of the 15 ticks before each episode's last applied
+    for run in saved["runs"]:
+        assert (run["commands"], run["actions"], run["episodes"]) == (30, 30, 2), run
+        assert not (run["rejected"] or run["nonfinite_actions"] or run["action_timeouts"]
+                    or run["deadline_misses"] or run["handler_errors"] or run["never_acted"])
+    assert "Every run of the 3: no command rejected" in report and " ! |" not in report
     # one video per episode, one frame per control tick the tracker counted
     videos = [f"videos/nominal__indoor__{m}__ep{k}.mp4"
               for m in ("expert", "no_action", "rgb_event") for k in (0, 1)]
@@ -69,6 +75,7 @@ def test_short_evaluation_runs_end_to_end_and_resumes(tmp_path):
     again = evaluate(plan)
     assert len(list((tmp_path / "eval" / "runs").iterdir())) == runs_before
     assert [e["seed"] for e in again["episodes"]] == [e["seed"] for e in eps]
+    assert again["runs"] == saved["runs"]
 
 
 def test_short_arm_evaluation_grasps_and_reports(tmp_path):
@@ -108,6 +115,11 @@ def test_short_arm_evaluation_grasps_and_reports(tmp_path):
     assert "| Expert (reference) | 1 | 6 |" in report and "| RGB-only | 1 | 6 |" in report
     assert (tmp_path / "eval" / "pose_error.png").stat().st_size > 5000
     assert (tmp_path / "eval" / "episodes" / "moving__multi__expert.jsonl").exists()
+    # the baseline's HOME and the expert's poses are all applied: 5 ticks before the last
+    for run in results["runs"]:
+        if run["modality"] in ("expert", "no_action"):
+            assert (run["commands"], run["rejected"], run["nonfinite_actions"],
+                    run["never_acted"]) == (5, 0, 0, False), run
 
 
 def test_test_split_runs_reserved_seeds_over_both_nav_variants(tmp_path):

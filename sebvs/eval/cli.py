@@ -38,6 +38,7 @@ def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list
 
 def _cmd_eval(args) -> int:
     from sebvs.sensor_pairs import checkpoint_dir
+    from .report import never_acted
     from .run import TASKS, EvalPlan, evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     try:
@@ -69,7 +70,11 @@ def _cmd_eval(args) -> int:
     print((plan.out / "report.md").read_text())
     print(f"wrote {plan.out}/: {TASKS[plan.task].output_files}"
           + (f", videos/ ({len(results.get('videos', []))} files)" if plan.video else ""))
-    return 0
+    # after the outputs are written: the marked rows and Run health are the evidence
+    idle = never_acted(results)
+    for line in idle:
+        print(f"sebvs eval: {line}", file=sys.stderr)
+    return 1 if idle else 0
 
 
 def _check_checkpoints(plan) -> None:
@@ -99,7 +104,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "grasping the last predicted pose. An interrupted evaluation resumes: "
                     "finished runs are kept. --workers / --ray play the runs and episodes "
                     "on several topology runs at once, with the same results.json "
-                    "(docs/scale.md).")
+                    "(docs/scale.md). Exits 1, after writing the reports, when a run "
+                    "never acted (the sim applied none of its commands: all rejected as "
+                    "NaN or the wrong shape, or none came); report.md marks rows with "
+                    "rejected or non-finite commands and lists them under Run health.")
     e.add_argument("--task", choices=["nav", "arm"], default="nav")
     e.add_argument("--modalities", default="rgb,event,rgb+event",
                    help="comma-separated: rgb, event, rgb+event; or rgb+diff, the control "

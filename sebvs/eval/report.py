@@ -6,7 +6,15 @@
      "seed_range": [first, last], "seed": topology seed,
      "overrides": [the --set given, where any], "episodes": [
         {"modality": "rgb" | "event" | "rgb+event" | "expert" | "no_action",
-         "condition": "nominal", "scenario": "indoor", "seed": 3, "metrics": {...}}, ...]}
+         "condition": "nominal", "scenario": "indoor", "seed": 3, "metrics": {...}}, ...],
+     "runs": [{"condition", "scenario", "modality", "episodes", "commands", "rejected",
+               "action_timeouts", "deadline_misses", "actions", "nonfinite_actions",
+               "handler_errors": {"actor.input": n}, "never_acted": bool}, ...]}
+
+"runs" (sebvs/eval/run.py run_health; absent from results written before it) says whether
+a row's figures are a policy's at all: a row with a command rejected or an action not
+finite is marked "!" in its tables, and every run with a counter above 0 is listed under
+"Run health".
 
 An episode's scenario is the nav scene's variant (indoor, outdoor) or the arm's object
 count (single, multi); results written before nav had variants say "single" or nothing,
@@ -32,6 +40,11 @@ MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event", "rgb+diff"
 NAME = {"expert": "Expert (reference)", "no_action": "No action (baseline)",
         "rgb": "RGB-only", "event": "Event-only", "rgb+event": "RGB+Event",
         "rgb+diff": "RGB+Diff (control)"}
+
+
+# the counters that put a run into the "Run health" section
+HEALTH_SHOWN = ("rejected", "nonfinite_actions", "action_timeouts", "deadline_misses")
+MARK = " !"
 
 
 def _ordered(keys) -> list:
@@ -150,7 +163,7 @@ def _paired_section(episodes: list[dict], value, label: str) -> list[str]:
             "|---|---|---|---|---|---|", *lines]
 
 
-def _nav_summary(groups: dict) -> list[str]:
+def _nav_summary(groups: dict, health: dict) -> list[str]:
     """One table per scenario, a row per condition and a column per model, each cell
     `paper rate / strict rate / episodes succeeded`: the whole evaluation at a glance,
     above the per-condition tables that carry the intervals and paired tests."""
@@ -174,17 +187,119 @@ def _nav_summary(groups: dict) -> list[str]:
                 a = aggregate_nav(by_mod[(m,)])
                 won = ("-" if math.isnan(a["episode_success"]) else
                        f"{round(a['episode_success'] * a['episodes'])} of {a['episodes']}")
-                cells.append(f"{_pct(a['success'])} / {_pct(a['strict_success'])} / {won}")
+                mark = MARK if flagged(health.get((cond, scen, m))) else ""
+                cells.append(f"{_pct(a['success'])} / {_pct(a['strict_success'])} / "
+                             f"{won}{mark}")
             lines.append(f"| {cond} | " + " | ".join(cells) + " |")
+        if any(flagged(health.get((c, scen, m))) for c in conds for m in mods):
+            lines += ["", f"{MARK.strip()}: a command rejected or an action not finite in "
+                          f"that run (below its condition's table, and Run health)."]
         lines.append("")
     return lines
+
+
+def _health_index(results: dict) -> dict:
+    """(condition, scenario, modality) -> the run's counters; {} for older results."""
+    runs = results.get("runs")
+    return {(r.get("condition"), r.get("scenario") or "single", r.get("modality")): r
+            for r in (runs if isinstance(runs, list) else []) if isinstance(r, dict)}
+
+
+def _count(run: dict, key: str) -> int:
+    v = run.get(key)
+    return int(v) if isinstance(v, (int, float)) and math.isfinite(v) else 0
+
+
+def _errors(run: dict) -> int:
+    errors = run.get("handler_errors")
+    return sum(_count(errors, k) for k in errors) if isinstance(errors, dict) else 0
+
+
+def flagged(run: dict | None) -> bool:
+    """A run whose row is marked: a command rejected or an action not finite."""
+    return run is not None and bool(_count(run, "rejected")
+                                    or _count(run, "nonfinite_actions"))
+
+
+def _who(modality: str) -> str:
+    return {"expert": "expert", "no_action": "no-action baseline"}.get(modality, "policy")
+
+
+def _what_failed(run: dict) -> str:
+    """The counts behind a mark: "10 of 10 commands rejected, 10 of 10 actions not
+    finite"."""
+    parts = []
+    if _count(run, "commands") or _count(run, "rejected"):
+        parts.append(f"{_count(run, 'rejected')} of {_count(run, 'commands')} commands "
+                     f"rejected")
+    else:
+        parts.append(f"no command reached the sim ({_count(run, 'action_timeouts')} action "
+                     f"timeouts)")
+    if _count(run, "nonfinite_actions"):
+        parts.append(f"{_count(run, 'nonfinite_actions')} of {_count(run, 'actions')} "
+                     f"actions not finite")
+    return ", ".join(parts)
+
+
+def never_acted(results: dict) -> list[str]:
+    """One line per run that never acted (the sim applied none of its commands), naming
+    the run and the counts; [] when every run acted or the results predate the counters."""
+    return [f"{r.get('modality')} {r.get('condition')} {r.get('scenario')}: the "
+            f"{_who(str(r.get('modality')))} never acted ({_what_failed(r)}); its row is "
+            f"marked in report.md"
+            for r in _health_index(results).values() if r.get("never_acted")]
+
+
+def _mark_notes(health: dict, cond: str, scen: str, mods) -> list[str]:
+    """The footnotes of a table's marked rows."""
+    notes = []
+    for m in mods:
+        run = health.get((cond, scen, m))
+        if flagged(run):
+            end = (": it never acted, these are the figures of a robot that kept its idle "
+                   "command" if run.get("never_acted") else
+                   ": the robot kept its last accepted command on those ticks")
+            notes.append(f"{MARK.strip()} {NAME.get(m, m)}: {_what_failed(run)}{end}.")
+    return ["", *notes] if notes else []
+
+
+def _health_section(health: dict) -> list[str]:
+    """Every run with a counter above 0; one line when there is none."""
+    if not health:
+        return []
+    bad = [(k, r) for k, r in sorted(health.items(), key=lambda kv: tuple(map(str, kv[0])))
+           if any(_count(r, c) for c in HEALTH_SHOWN) or _errors(r)]
+    lines = ["## Run health", ""]
+    if not bad:
+        return lines + [f"Every run of the {len(health)}: no command rejected, no action "
+                        f"that was not finite, no action timeout, no deadline miss, no "
+                        f"handler error.", ""]
+    lines += ["Runs with a command rejected by the sim, an action not finite (NaN, inf), a "
+              "lockstep action timeout, a realtime deadline miss or an actor's input "
+              "handler that raised; the others had none.", "",
+              "| run | episodes | commands rejected | actions not finite | action timeouts | "
+              "deadline misses | handler errors |",
+              "|---|---|---|---|---|---|---|"]
+    for (cond, scen, mod), r in bad:
+        errors = r.get("handler_errors") if isinstance(r.get("handler_errors"), dict) else {}
+        where = ", ".join(f"{k} {_count(errors, k)}" for k in sorted(errors)
+                          if _count(errors, k))
+        lines.append(f"| {cond} / {scen} / {NAME.get(mod, mod)}"
+                     f"{' (never acted)' if r.get('never_acted') else ''} | "
+                     f"{_count(r, 'episodes')} | "
+                     f"{_count(r, 'rejected')} of {_count(r, 'commands')} | "
+                     f"{_count(r, 'nonfinite_actions')} of {_count(r, 'actions')} | "
+                     f"{_count(r, 'action_timeouts')} | {_count(r, 'deadline_misses')} | "
+                     f"{_errors(r)}{f' ({where})' if where else ''} |")
+    return lines + [""]
 
 
 def render_report(results: dict) -> str:
     task = results["task"]
     eps = results["episodes"]
+    health = _health_index(results)
     lines = [f"# Closed-loop evaluation: {task}", ""]
-    meta = {k: v for k, v in results.items() if k not in ("episodes", "task")}
+    meta = {k: v for k, v in results.items() if k not in ("episodes", "task", "runs")}
     if meta:
         lines += [", ".join(f"{k}: {v}" for k, v in meta.items()), ""]
     lines += _seed_note(results)
@@ -199,7 +314,7 @@ def render_report(results: dict) -> str:
         groups = defaultdict(list)
         for e in eps:
             groups[(e["condition"], _nav_scenario(e))].append(e)
-        lines += _nav_summary(groups)
+        lines += _nav_summary(groups, health)
         for (cond, scen), group in sorted(groups.items()):
             title = cond if scen == "single" else f"{cond}, {scen}"
             lines += [f"## Condition: {title}", "",
@@ -208,17 +323,20 @@ def render_report(results: dict) -> str:
                       "Episode success (%) [95% CI] | Trial duration (s) |",
                       "|---|---|---|---|---|---|---|---|"]
             by_mod = _group(group, "modality")
-            for (mod,) in [(m,) for m in _ordered(m for (m,) in by_mod)]:
+            mods = _ordered(m for (m,) in by_mod)
+            for mod in mods:
                 a = aggregate_nav(by_mod[(mod,)])
                 lo, hi = a["success_ci95"]
                 elo, ehi = a["episode_success_ci95"]
-                lines.append(f"| {NAME.get(mod, mod)} | {a['episodes']} | "
+                mark = MARK if flagged(health.get((cond, scen, mod))) else ""
+                lines.append(f"| {NAME.get(mod, mod)}{mark} | {a['episodes']} | "
                              f"{_num(a['centroid_error_px'])} ± "
                              f"{_num(a['centroid_error_std_px'])} | "
                              f"{_num(a['bbox_width_px'])} | {_pct(a['success'])} "
                              f"[{_pct(lo)}, {_pct(hi)}] | {_pct(a['strict_success'])} | "
                              f"{_pct(a['episode_success'])} [{_pct(elo)}, {_pct(ehi)}] | "
                              f"{_num(a['duration_s'])} |")
+            lines += _mark_notes(health, cond, scen, mods)
             lines += _paired_section(group, lambda e: e["metrics"]["success"], "success")
             # the paper's 200 px rate saturates at 100 % for a policy that follows at all,
             # and then ties every pair; the 50 px rate still tells followers apart
@@ -241,22 +359,26 @@ def render_report(results: dict) -> str:
                       "End decision (%) |",
                       "|---|---|---|---|---|---|---|---|"]
             by_mod = _group(group, "modality")
-            for mod in _ordered(m for (m,) in by_mod):
+            mods = _ordered(m for (m,) in by_mod)
+            for mod in mods:
                 a = aggregate_arm(by_mod[(mod,)])
                 lo, hi = a["grasp_success_ci95"]
-                lines.append(f"| {NAME.get(mod, mod)} | {a['episodes']} | {a['n']} | "
+                mark = MARK if flagged(health.get((cond, scen, mod))) else ""
+                lines.append(f"| {NAME.get(mod, mod)}{mark} | {a['episodes']} | {a['n']} | "
                              f"{_num(a['position_error_mm'])} ± "
                              f"{_num(a['position_error_std_mm'])} | {_pct(a['accuracy'])} | "
                              f"{_num(a['latency_p50_ms'], '.2f')} / "
                              f"{_num(a['latency_p99_ms'], '.2f')} | "
                              f"{_pct(a['grasp_success'])} [{_pct(lo)}, {_pct(hi)}] | "
                              f"{_pct(a['end_decision'])} |")
+            lines += _mark_notes(health, cond, scen, mods)
             lines += _paired_section(
                 [e for e in group if e["metrics"].get("grasp_success") is not None],
                 lambda e: float(e["metrics"]["grasp_success"]), "grasp success")
             lines.append("")
     else:
         raise ValueError(f"unknown task {task!r} in results")
+    lines += _health_section(health)
     return "\n".join(lines)
 
 

@@ -20,6 +20,12 @@ worker processes or Ray tasks (`run_fanout`), each shard episodes [a, b) of one 
 the seeds and numbers one process would give them, merged in episode order: the same
 results.json for any worker count.
 
+Run health: each episode line carries the sim's and the tracker's counters (actors/
+tracker.py, "health"); the handler errors, which only the actors' stats hold, are kept per
+run in <out>/episodes/<run>.health.json (summed over a fan-out's shards), so a resumed
+evaluation still has them. results.json "runs" sums both per run; a run whose sim applied
+no command at all ("never_acted") makes `sebvs eval` exit 1.
+
 Videos (`video`): the overrides add a video writer (actors/video.py) to the run, writing
 <out>/videos/<condition>[__<scenario>]__<modality>__ep<k>.mp4 for the first `video_episodes`
 episodes, with the event frames wired to it for the modalities that use them, and the sim
@@ -151,6 +157,9 @@ VIDEO_FINALIZE_S = 1.0         # the video writer's wait for an episode's traili
 VIDEO_DRAIN_MARGIN_S = 0.5     # the sim's linger beyond that wait
 SHARED_SIM_KEYS = ("integrator", "physics_hz", "timestep", "control_hz", "render_hz",
                    "episode_s")
+# an episode line's "health" counters (actors/tracker.py); lines written before them read 0
+HEALTH_COUNTERS = ("commands", "rejected", "action_timeouts", "deadline_misses", "actions",
+                   "nonfinite_actions")
 
 
 def condition_sensor(task: str, condition: str) -> str:
@@ -281,6 +290,10 @@ class EvalPlan:
 
     def episode_file(self, run: Run) -> Path:
         return self.out / "episodes" / f"{run.key}.jsonl"
+
+    def health_file(self, run: Run) -> Path:
+        """The run's counters that its episode lines do not carry (handler errors)."""
+        return self.out / "episodes" / f"{run.key}.health.json"
 
     def video_files(self, run: Run) -> list[Path]:
         """The videos a finished run leaves (.mp4; see EpisodeVideo for the .avi fallback)."""
@@ -460,10 +473,59 @@ def _read_episodes(path: Path, seed: int | None = None) -> list[dict]:
     return out
 
 
+def handler_errors(losses: dict | None) -> dict[str, int]:
+    """{"actor.input": n} of the inputs whose handler raised, from a Supervisor's losses
+    (run.json "losses", sebvs/runtime/stalls.py)."""
+    return {name: int(lost["errors"]) for name, lost in (losses or {}).items()
+            if isinstance(lost, dict) and lost.get("errors")}
+
+
+def _write_health(plan: EvalPlan, run: Run, errors: dict[str, int]) -> None:
+    path = plan.health_file(run)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"topology_seed": plan.seed,
+                               "handler_errors": dict(sorted(errors.items()))}) + "\n")
+    os.replace(tmp, path)
+
+
+def _read_health(plan: EvalPlan, run: Run) -> dict[str, int]:
+    """The run's handler errors as written after it; {} where none were written (a run
+    of an older version) or they are another seed's."""
+    try:
+        saved = json.loads(plan.health_file(run).read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(saved, dict) or saved.get("topology_seed") != plan.seed \
+            or not isinstance(saved.get("handler_errors"), dict):
+        return {}
+    return {str(k): int(v) for k, v in saved["handler_errors"].items()
+            if isinstance(v, int) and v > 0}
+
+
+def run_health(plan: EvalPlan, run: Run, episodes: list[dict]) -> dict:
+    """One run's counters summed over its episodes, its handler errors, and whether it
+    never acted: the sim applied none of its commands (all rejected, or none came)."""
+    sums = dict.fromkeys(HEALTH_COUNTERS, 0)
+    counted = 0
+    for rec in episodes:
+        health = rec.get("health")
+        if not isinstance(health, dict):
+            continue            # a line written before the counters: zeros
+        counted += 1
+        for k in HEALTH_COUNTERS:
+            v = health.get(k)
+            sums[k] += int(v) if isinstance(v, (int, float)) and math.isfinite(v) else 0
+    return {"condition": run.condition, "scenario": run.scenario, "modality": run.modality,
+            "episodes": len(episodes), **sums, "handler_errors": _read_health(plan, run),
+            "never_acted": counted > 0 and sums["commands"] - sums["rejected"] <= 0}
+
+
 def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
     path = plan.episode_file(run)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
+    plan.health_file(run).unlink(missing_ok=True)
     if plan.video:      # a rerun with fewer --video-episodes leaves no stale files behind
         for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
             old.unlink()
@@ -491,6 +553,9 @@ def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
         raise
     if code != 0:
         raise RunFailed(f"{run}: {sup.failure}")
+    # the live actors' last stats, queried as the run stopped (an actor that ended
+    # first, the sim, counts as of the supervisor's last stall round)
+    _write_health(plan, run, handler_errors(sup.info.get("losses")))
     episodes = _read_episodes(path, plan.seed)
     bar.update(done_before + len(episodes) - bar.n)
     if len(episodes) < plan.episodes:
@@ -521,10 +586,12 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
     workers = plan.workers or (os.cpu_count() or 1)
     parts = max(1, -(-workers // len(runs)))
     lines: dict[Run, dict[int, dict]] = {run: {} for run in runs}
+    errors: dict[Run, dict[str, int]] = {run: {} for run in runs}
     live: dict[Shard, Path] = {}
     shards = []
     for run in runs:
         plan.episode_file(run).unlink(missing_ok=True)
+        plan.health_file(run).unlink(missing_ok=True)
         if plan.video:      # as run_one: a rerun leaves no stale videos behind
             for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
                 old.unlink()
@@ -559,12 +626,17 @@ def run_fanout(plan: EvalPlan, runs: list[Run], bar: tqdm) -> None:
     def collect(shard: Shard, result: dict | None) -> list[int]:
         path = live.pop(shard)
         have = lines[shard.job]
+        # every attempt's: a retried shard's errors happened in this evaluation too
+        for name, n in handler_errors((result or {}).get("losses")).items():
+            errors[shard.job][name] = errors[shard.job].get(name, 0) + n
         for rec in _read_episodes(path, plan.seed):
             k = rec.get("episode")
             if isinstance(k, int) and shard.first <= k < shard.stop:
                 have.setdefault(k, rec)
         path.unlink(missing_ok=True)
         if len(have) == plan.episodes:
+            # before the episodes: a complete episode file is what resume skips on
+            _write_health(plan, shard.job, errors[shard.job])
             _write_lines_atomic(plan.episode_file(shard.job),
                                 [have[k] for k in sorted(have)])
         progress()
@@ -623,8 +695,11 @@ def evaluate(plan: EvalPlan) -> dict:
     if plan.extra:      # the --set overrides every run had (an ablation among them)
         results["overrides"] = list(plan.extra)
     trace = TASKS[plan.task].trace_key
+    results["runs"] = []
     for run in runs:
-        for rec in _read_episodes(plan.episode_file(run), plan.seed)[:plan.episodes]:
+        records = _read_episodes(plan.episode_file(run), plan.seed)[:plan.episodes]
+        results["runs"].append(run_health(plan, run, records))
+        for rec in records:
             results["episodes"].append({"modality": run.modality, "condition": run.condition,
                                         "scenario": run.scenario,
                                         "seed": rec["seed"], "metrics": rec["metrics"],
