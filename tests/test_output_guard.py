@@ -145,3 +145,53 @@ def test_a_second_export_of_a_dataset_needs_force(dataset, capsys):
     assert "exists; give --force" in capsys.readouterr().err
     assert main(["data", "export", str(dataset), "--quiet", "--force"]) == 0
     assert digest(dataset / "mcap").keys() == first.keys()
+
+
+def test_train_writes_neither_into_its_dataset_nor_over_a_finished_checkpoint(
+        tmp_path, capsys):
+    from tests.policy_data import make_dataset as make_policy_dataset
+    data = make_policy_dataset(tmp_path / "data", episodes=3, frames=8)
+    before = digest(data)
+    train = ["train", "--task", "nav", "--modality", "rgb", "--data", str(data),
+             "--epochs", "1", "--size", "32", "--no-progress"]
+    assert main([*train, "--out", str(data)]) == 2
+    assert "this command's input" in capsys.readouterr().err
+    assert digest(data) == before
+    ck = tmp_path / "ck"
+    assert main([*train, "--out", str(ck)]) == 0
+    trained = digest(ck)
+    assert main([*train, "--out", str(ck)]) == 2
+    assert "nav-rgb.pt: exists; give --force" in capsys.readouterr().err
+    assert digest(ck) == trained
+    assert main([*train, "--out", str(ck), "--force"]) == 0
+
+
+@pytest.mark.parametrize("seed", ["-1", str(2 ** 31), str(2 ** 32 + 5), "x"])
+def test_train_refuses_a_seed_outside_the_one_range(seed, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "--task", "nav", "--modality", "rgb", "--data", "d", "--out", "o",
+              "--seed", seed])
+    assert stop.value.code == 2 and "--seed" in capsys.readouterr().err
+
+
+def test_eval_writes_neither_into_a_dataset_nor_into_its_checkpoints(tmp_path, dataset,
+                                                                     capsys):
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / "nav-rgb.pt").write_bytes(b"weights")
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "notes.txt").write_text("mine")
+    for out, expected in ((dataset, "it is a dataset"), (ck, "this command's input"),
+                          (busy, "give --force"), (dataset / "index.json", "a file")):
+        assert main(["eval", "--modalities", "rgb", "--checkpoints", str(ck), "--episodes",
+                     "1", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert (ck / "nav-rgb.pt").read_bytes() == b"weights"
+
+
+def test_eval_refuses_a_seed_that_would_wrap(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["eval", "--seed", str(2 ** 31 + 100_000), "--out", "o"])
+    assert stop.value.code == 2 and "2**31" in capsys.readouterr().err

@@ -50,6 +50,20 @@ def workers_arg(text: str) -> int:
                                      f"or auto")
 
 
+def seed_arg(text: str) -> int:
+    """--seed: a seed of the project's one range, 0 <= seed < 2**31 (topology seeds are
+    one-to-one with their episodes there, sebvs/runtime/topology.py; training seeds keep
+    the same rule)."""
+    import argparse
+
+    from sebvs.runtime.topology import check_seed
+    try:
+        return check_seed(int(text), "seed")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc) if text.strip().lstrip("-").isdigit()
+                                         else f"{text!r}: expected an integer") from None
+
+
 def add_fanout_arguments(parser, what: str) -> None:
     """--workers, --ray and --max-attempts of `sebvs record` and `sebvs eval` (docs/scale.md)."""
     parser.add_argument(

@@ -37,6 +37,7 @@ def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list
 
 
 def _cmd_eval(args) -> int:
+    from sebvs.output_guard import check_output_dir
     from sebvs.sensor_pairs import checkpoint_dir
     from .report import never_acted
     from .run import TASKS, EvalPlan, evaluate
@@ -57,6 +58,8 @@ def _cmd_eval(args) -> int:
                     video=args.video, video_episodes=args.video_episodes,
                     workers=args.workers, ray=args.ray, max_attempts=args.max_attempts)
     try:
+        check_output_dir(plan.out, inputs=[plan.checkpoints], force=args.force,
+                         owns=is_evaluation, what="evaluation")
         plan.validate()
         if plan.ray is not None and importlib.util.find_spec("ray") is None:
             raise ValueError("--ray needs Ray, which is not installed: pip install -e .[ray]")
@@ -77,6 +80,11 @@ def _cmd_eval(args) -> int:
     return 1 if idle else 0
 
 
+def is_evaluation(path: Path) -> bool:
+    """A folder `sebvs eval` wrote: it resumes there (its episode lines, results, runs)."""
+    return (path / "episodes").is_dir() or (path / "results.json").is_file()
+
+
 def _check_checkpoints(plan) -> None:
     """Load every policy's checkpoint once before any run: a missing, damaged or refused
     file then stops the evaluation with its name, not a policy actor minutes into it."""
@@ -89,7 +97,7 @@ def _check_checkpoints(plan) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from sebvs.data.cli import add_fanout_arguments
+    from sebvs.data.cli import add_fanout_arguments, seed_arg
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
     from sebvs.sensor_pairs import DEFAULT_SENSOR, SENSORS
     from .run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS,
@@ -140,7 +148,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"topology seeds of the episodes: dev ({SPLITS['dev']}, the default, "
                         f"to evaluate and iterate on) or test ({SPLITS['test']}, held out: no "
                         f"recording may use them); the split's first seed unless --seed")
-    e.add_argument("--seed", type=int, default=None,
+    e.add_argument("--seed", type=seed_arg, default=None,
                    help=f"topology seed (episode seeds follow); alone, the split is 'custom'; "
                         f"default: the first of the split ({DEFAULT_EVAL_SPLIT}: "
                         f"{SPLITS[DEFAULT_EVAL_SPLIT].first})")
@@ -164,6 +172,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "camera runs at it too, capped at its sensor's top rate")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="extra topology overrides for every run")
-    e.add_argument("--out", required=True, help="output directory")
+    e.add_argument("--out", required=True,
+                   help="output directory: new, empty, or an earlier evaluation's (it "
+                        "resumes); never a dataset or the checkpoint folder")
+    e.add_argument("--force", action="store_true",
+                   help="write into a folder that holds other files and no evaluation")
     add_fanout_arguments(e, "evaluation's runs and episodes")
     e.set_defaults(func=_cmd_eval)

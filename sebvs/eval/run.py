@@ -51,7 +51,7 @@ from ..policy.checkpoint import checkpoint_paths, read_config
 from ..policy.inputs import CONTROL_MODALITIES, MODALITY_INPUTS
 from ..policy.inputs import MODALITIES as PAPER_MODALITIES
 from ..runtime.supervisor import RunFailed, Supervisor
-from ..runtime.topology import load_topology, parse_override
+from ..runtime.topology import check_seed, load_topology, parse_override
 from ..sensor_pairs import camera_override, emulator_override
 from .report import plot_success, render_report
 
@@ -255,6 +255,9 @@ class EvalPlan:
             raise ValueError(f"unknown split {self.split!r} (one of {', '.join(EVAL_SPLITS)})")
         if self.seed is None:
             raise ValueError("a custom split needs a topology seed (--seed)")
+        # a custom seed past 2**31 would wrap onto another seed's episodes, a test seed's
+        # among them, and be reported as "custom"
+        check_seed(self.seed, "--seed")
         if self.split in EVAL_SPLITS and self.seed not in SPLITS[self.split]:
             raise ValueError(f"--seed {self.seed} is outside the {self.split} split's range "
                              f"({SPLITS[self.split]})")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from sebvs.data.cli import seed_arg
+
 
 def _size(text: str) -> int:
     from .inputs import parse_size
@@ -28,6 +30,11 @@ def _cmd_train(args) -> int:
     from .inputs import MODALITIES, Normalisation
     from .train import loader_workers, train
     modalities = list(MODALITIES) if args.modality == "all" else [args.modality]
+    try:
+        check_train_outputs(args.out, args.data, args.task, modalities, args.force)
+    except ValueError as exc:
+        print(f"sebvs train: {exc}", file=sys.stderr)
+        return 2
     if args.size >= 640 and args.device == "cpu":
         print(f"sebvs train: note: {args.size} px is the paper's GPU preset; on a 2-core CPU "
               f"one batch of 32 takes ~8 s (tools/bench/bench_policy.py). Use --device cuda, or "
@@ -47,6 +54,21 @@ def _cmd_train(args) -> int:
     return 0
 
 
+def check_train_outputs(out, data, task: str, modalities: list[str], force: bool) -> None:
+    """OutputRefused (one line) for a training whose outputs `sebvs train` must not write:
+    into the dataset it reads, or over a finished checkpoint (its weights, config or loss
+    CSV) unless ``force``. A stopped training's resume state is its own to go on from."""
+    from pathlib import Path
+
+    from sebvs.output_guard import check_output_dir, check_output_file
+    from .checkpoint import checkpoint_paths
+    check_output_dir(out, inputs=[data], owns=lambda p: True, what="checkpoints")
+    for modality in modalities:
+        pt, js = checkpoint_paths(out, task, modality)
+        for path in (pt, js, Path(out) / f"{task}-{modality}-losses.csv"):
+            check_output_file(path, force=force)
+
+
 def _cmd_train_sweep(args) -> int:
     import importlib.util
     from pathlib import Path
@@ -54,8 +76,11 @@ def _cmd_train_sweep(args) -> int:
     from .sweep import plan_sweep, run_sweep
     from .sweep_grid import load_grid
     from .sweep_table import SUMMARY_JSON, SUMMARY_MD, format_markdown
+    from sebvs.output_guard import check_output_dir
     try:
         grid = load_grid(args.grid)
+        # its own folder, resumed point by point; never the dataset the points read
+        check_output_dir(args.out, inputs=[grid.data], owns=lambda p: True, what="sweep")
         if args.dry_run:
             points, records = plan_sweep(grid, args.out)
             width = max(len(p.name) for p in points)
@@ -108,7 +133,9 @@ def register(subparsers) -> None:
                         "without a gate (docs/policy.md; default patch)")
     t.add_argument("--epochs", type=int, default=None, help="default 10")
     t.add_argument("--batch", type=int, default=None, help="default 32")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=seed_arg, default=0,
+                   help="seeds the weights, the shuffle and the train/validation split of "
+                        "episodes (0 <= seed < 2**31; default 0)")
     t.add_argument("--max-frames", type=int, default=0,
                    help="cap on training frames, strided over all episodes (0: all)")
     t.add_argument("--lr", type=float, default=None, help="default: the paper's per task")
@@ -125,6 +152,9 @@ def register(subparsers) -> None:
                    help="frames read whole into memory before training (auto: when they "
                         "fit half the available memory), or from the files item by item")
     t.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's)")
+    t.add_argument("--force", action="store_true",
+                   help="train again over finished checkpoints of these variants in --out "
+                        "(default: refused; a stopped training goes on without it)")
     t.add_argument("--device", default="cpu",
                    help="torch device, e.g. cuda for the paper preset (default cpu; "
                         "bit-reproducible on cpu only)")

@@ -52,6 +52,12 @@ def _integer(low: int) -> Callable[[Any], int]:
     return check
 
 
+def _seed(value: Any) -> int:
+    """A training seed, in the project's one seed range (sebvs/runtime/topology.py)."""
+    from sebvs.runtime.topology import check_seed
+    return check_seed(value, "seed")
+
+
 def _number(value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"expected a number, got {value!r}")
@@ -91,7 +97,7 @@ def _size(value: Any) -> int:
 # setting -> check (returns the value in its canonical type, or raises ValueError saying why)
 SETTINGS: dict[str, Callable[[Any], Any]] = {
     "modality": _one_of(MODALITIES + CONTROL_MODALITIES),
-    "seed": _integer(0),
+    "seed": _seed,
     "lr": _positive,
     "stem": _one_of(STEMS),
     "epochs": _integer(1),
