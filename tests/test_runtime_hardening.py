@@ -672,3 +672,50 @@ def test_a_run_whose_input_lost_messages_says_so_when_it_stops(tmp_path):
     assert "malformed" in lines[0], lines
     info = json.loads((sup.rundir / "run.json").read_text())
     assert info["losses"]["sink.frames"]["malformed"] > 0
+
+
+def test_no_spec_holding_the_token_outlives_a_workers_start_and_a_restart_writes_it_again(
+        tmp_path):
+    """A worker's spec holds the run's token; a pool worker killed with SIGKILL used to leave
+    it in the socket directory until `sebvs ps` cleaned up. Each worker now removes its spec
+    once read, and the supervisor writes it again for a restart."""
+    import signal
+    import time
+
+    from sebvs.runtime.supervisor import Supervisor
+    from sebvs.runtime.topology import load_topology
+    topo = source_sink_topology(tmp_path, "spec", topology='restart = "restart"',
+                                source="width = 32\nheight = 32\nrate_hz = 100.0")
+    sup = Supervisor(load_topology(topo), runs_dir=tmp_path, echo=lambda s: None)
+    sup.start()
+
+    def holding_token() -> list[str]:
+        return sorted(f.name for f in sup.sockdir.iterdir()
+                      if f.is_file() and sup.token.encode() in f.read_bytes())
+
+    seen = {}
+
+    def watch(dt: float) -> None:
+        time.sleep(dt)
+        sink = sup.procs["sink"]
+        if "killed" not in seen:
+            seen["killed"] = sink.popen.pid
+            os.kill(sink.popen.pid, signal.SIGKILL)
+        elif sink.restarts == 1 and sink.ready and "after" not in seen:
+            seen["after"] = holding_token()
+            seen["stats"] = sup.request("sink", {"cmd": "stats"})
+            sup.interrupt("checked")
+        if time.monotonic() > deadline:
+            sup.interrupt("no restart in time")
+
+    try:
+        assert holding_token() == []
+        assert sorted(p.name for p in sup.sockdir.glob("*.json")) == []
+        deadline = time.monotonic() + 15
+        code = sup.wait(None, on_poll=watch)
+    finally:
+        sup.stop()
+    assert code == 0 and sup.procs["sink"].restarts == 1, seen
+    assert sup.procs["sink"].popen.pid != seen["killed"]
+    assert seen["after"] == []                 # the restarted worker read and removed its own
+    assert seen["stats"]["ok"] and seen["stats"]["result"]["started"]

@@ -57,6 +57,7 @@ class Node:
         self.finished_reason: str | None = None
         self.events: list = []
         self.telemetry_subscribers = 0
+        self._served: set[str] = set()     # endpoints of our server sockets
         self.actor = actor_factory(self)
         self.tasks: list[asyncio.Task] = []
 
@@ -77,6 +78,9 @@ class Node:
         self.telemetry_socket.setsockopt(zmq.LINGER, 0)
         curve.serve(self.telemetry_socket, spec["telemetry"], self.token)
         self.telemetry_socket.bind(spec["telemetry"])
+        self._served = {spec["control"], spec["telemetry"]} | {
+            ep for o in spec["outputs"].values() for ep in (o["endpoint"], o.get("remote"))
+            if ep}
 
     def _watch_subscriptions(self) -> None:
         self.outputs.watch_subscriptions()
@@ -90,9 +94,15 @@ class Node:
 
     # ------------------------------------------------------------------ control
     def stats(self) -> dict:
-        return {"actor": self.name, "pid": os.getpid(), "started": self.started.is_set(),
-                "inputs": self.inputs.stats(), "outputs": self.outputs.stats(),
-                "actor_stats": self.actor.stats()}
+        stats = {"actor": self.name, "pid": os.getpid(), "started": self.started.is_set(),
+                 "inputs": self.inputs.stats(), "outputs": self.outputs.stats(),
+                 "actor_stats": self.actor.stats()}
+        # clients that offered a key not of this run, on this actor's own endpoints (a
+        # group's context serves its other members' too)
+        refused = {ep: n for ep, n in curve.refused(self.ctx).items() if ep in self._served}
+        if refused:
+            stats["refused_clients"] = refused
+        return stats
 
     async def _handle_control(self, req: Any) -> dict:
         if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
@@ -228,6 +238,7 @@ class Node:
     async def _say_ready(self, endpoint: str) -> None:
         push = self.ctx.socket(zmq.PUSH)
         push.setsockopt(zmq.LINGER, 1000)
+        curve.client(push, endpoint, self.token)
         push.connect(endpoint)
         # queued at once (ZMQ_IMMEDIATE is off), even for a supervisor that is gone
         await push.send(msgpack.packb({"event": "ready", "actor": self.name,

@@ -4,7 +4,8 @@ handshake, clean stop.
     runs/<name>-<time>-<id>/run.json        endpoints, pids, status (rewritten atomically)
     runs/<name>-<time>-<id>/logs/<process>.log   (an isolated actor's process has its name;
                                             a group member's <actor>.log links to it)
-    <tmp>/sebvs-<id>/                       ipc sockets, process specs; removed at the end
+    <tmp>/sebvs-<id>/                       ipc sockets, process specs (each removed by
+                                            its worker once read); removed at the end
 
 A topology with [hosts.<name>] tables runs one supervisor per host (``host=``): each
 spawns its own host's actors; the first listed host's (the primary) also waits for the
@@ -110,6 +111,7 @@ class _Proc:
     name: str
     spec_path: Path
     log_path: Path
+    spec_text: str = ""     # written at each spawn: the worker removes it once read
     members: list[str] = field(default_factory=list)
     grouped: bool = False
     popen: subprocess.Popen | None = None
@@ -329,6 +331,8 @@ class Supervisor:
         self.specs = specs
         self._check_ring_budget(specs)
         self.pull = self.ctx.socket(zmq.PULL)
+        # over tcp anyone could otherwise report an actor ready before it is
+        curve.serve(self.pull, self.supervisor_endpoint, self.token)
         self.pull.bind(self.supervisor_endpoint)
         self.info = {
             "name": self.topo.name, "run_id": self.run_id, "topology": str(self.topo.path),
@@ -366,8 +370,11 @@ class Supervisor:
                     "cpus": specs[members[0]]["cpus"], "supervisor_pid": os.getpid(),
                     "priority": specs[members[0]]["priority"],
                     "log_level": self.log_level} if grouped else specs[name]
-            spec_path.write_text(json.dumps(spec))
+            # it holds the token: on disk only from its spawn until the worker has read it,
+            # so a kill -9 of anything after the start leaves none behind
+            spec = {**spec, "remove_after_read": True}
             self.procs[name] = p = _Proc(name, spec_path, self.rundir / "logs" / f"{name}.log",
+                                         spec_text=json.dumps(spec),
                                          members=list(members), grouped=grouped)
             for m in members:
                 self.proc_of[m] = p
@@ -499,6 +506,9 @@ class Supervisor:
         env["PYTHONPATH"] = cwd + os.pathsep + env.get("PYTHONPATH", "") if \
             env.get("PYTHONPATH") else cwd  # users' own actor modules next to the topology
         p.outcome_path.unlink(missing_ok=True)     # a restarted group's previous account
+        fd = os.open(p.spec_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(p.spec_text)
         with open(p.log_path, "ab") as log:
             p.popen = subprocess.Popen([sys.executable, "-m", "sebvs.runtime.worker",
                                         str(p.spec_path)], stdout=log, stderr=subprocess.STDOUT,
@@ -585,6 +595,7 @@ class Supervisor:
                 code = p.popen.poll()
                 if code is not None:
                     p.exit_code = code
+                    p.spec_path.unlink(missing_ok=True)    # died before it read its spec
                     dead.append(p)
         return dead
 

@@ -1,7 +1,9 @@
 """Entry point of one actor process: ``python -m sebvs.runtime.worker SPEC.json``.
 
-The supervisor writes the spec (actor class, parameters, endpoints) and starts this
-module with the actor's log file as stdout/stderr. A group spec (``"members"``: several
+The supervisor writes the spec (actor class, parameters, endpoints, the run's token) and
+starts this module with the actor's log file as stdout/stderr. A spec that says
+``"remove_after_read"`` (every one the supervisor writes) is removed as soon as it is
+read; the supervisor writes it again for a restart. A group spec (``"members"``: several
 actor specs) runs all of them in this one process (``group.py``).
 """
 from __future__ import annotations
@@ -112,6 +114,11 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     with open(argv[0]) as f:
         spec = json.load(f)
+    if spec.get("remove_after_read"):
+        try:
+            os.unlink(argv[0])
+        except FileNotFoundError:
+            pass
     _die_with_parent(spec["supervisor_pid"])
     label = spec["process"] if "members" in spec else spec["name"]
     logging.basicConfig(level=getattr(logging, spec.get("log_level", "INFO")),
