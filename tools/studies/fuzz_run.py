@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""Hostile messages through a live run: is every one counted, and does the input live on?
+"""Hostile input, by class: messages through a live run (the default) or files (--class files).
+
+--class messages: is every hostile message counted, and does the input live on?
 
 Runs topologies/fuzz.toml (actors/fuzz.py): a producer sends rounds of every hostile class
 of sebvs/runtime/hostile.py (garbage, not a map, wrong version, bad fields, stamps, dtypes,
@@ -19,6 +21,12 @@ input's counters, the probes it handled and its memory. Printed (and with --json
   memory_growth_mb  the sink's RSS at the end minus at its first probe
 
     tools/studies/fuzz_run.py [--messages N] [--oversize-every R] [--json FILE]
+
+--class files: every writing command at every hostile output path and every reader at
+every damaged episode, each as its own `sebvs` process (tools/studies/fuzz_files.py has
+the cases); printed: overwritten, accepted, unnamed and tracebacks, 0 the target of each.
+
+    tools/studies/fuzz_run.py --class files [--json FILE]
 """
 from __future__ import annotations
 
@@ -31,6 +39,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))     # fuzz_files beside it
 
 from sebvs.runtime.hostile import EXPECTED, ROUND  # noqa: E402
 from sebvs.runtime.supervisor import RunFailed, run_topology  # noqa: E402
@@ -50,7 +59,12 @@ def main() -> int:
     ap.add_argument("--oversize-every", type=int, default=200,
                     help="rounds between oversized messages (0: none)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
+    ap.add_argument("--class", dest="kind", choices=("messages", "files"), default="messages",
+                    help="hostile messages through a live run (default), or hostile output "
+                         "paths and damaged episodes through every command")
     args = ap.parse_args()
+    if args.kind == "files":
+        return files_main(args)
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="sebvs-fuzz-") as tmp:
         sent_path, sink_path = Path(tmp) / "sent.json", Path(tmp) / "sink.json"
@@ -96,6 +110,18 @@ def main() -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0 if alive and out["uncounted_total"] == 0 and not out["inputs_cut_off"] else 1
+
+
+def files_main(args) -> int:
+    from fuzz_files import run_files
+    with tempfile.TemporaryDirectory(prefix="sebvs-fuzz-files-") as tmp:
+        out = run_files(Path(tmp), progress=lambda line: print(line, flush=True))
+    print(json.dumps({k: v for k, v in out.items() if k != "cases"}, indent=1))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0 if not (out["overwritten"] or out["accepted"] or out["unnamed"]
+                     or out["tracebacks"]) else 1
 
 
 if __name__ == "__main__":
