@@ -1,12 +1,14 @@
 # The two commands of the README: `make demo` and `make test`. Both bootstrap
-# .venv (and the system GL libraries MuJoCo rendering needs) on first use.
+# .venv (and the system GL libraries MuJoCo rendering needs) on first use, as does
+# `make research-test`, the finished studies' tests (research/tests; `make test` leaves
+# them out: pyproject.toml's testpaths is tests/ alone).
 PY       ?= python3
 VENV     := .venv
 VPY      := $(VENV)/bin/python
 STAMP    := $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test bench venv gl clean
+.PHONY: demo test research-test bench venv gl clean
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(VPY) || $(PY) -m venv $(VENV)
@@ -24,6 +26,9 @@ demo: $(STAMP) gl
 
 test: $(STAMP) gl
 	$(VPY) -m pytest -q
+
+research-test: $(STAMP) gl
+	$(VPY) -m pytest -q research/tests
 
 bench: $(STAMP) gl
 	$(VPY) tools/bench/bench_hops.py --quick --json out/bench_hops.json

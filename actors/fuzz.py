@@ -1,4 +1,4 @@
-"""Actors of tools/studies/fuzz_run.py: a hostile producer and the sink it attacks.
+"""Actors of tools/checks/fuzz_run.py: a hostile producer and the sink it attacks.
 
 HostileSource  output `frames`: rounds of every hostile class of sebvs.runtime.hostile,
                each round followed by a valid probe (meta {"probe": k}); every

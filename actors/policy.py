@@ -49,7 +49,7 @@ class Policy(Actor):
         graph: Literal["auto", "eager", "frozen"] = "auto"
         # a closed-loop ablation, off unless asked: modality -> {"channels": [int],
         # "levels": [float]}, those input channels held at those levels (model input
-        # units) every tick; tools/studies/ablation_levels.py gives a checkpoint's
+        # units) every tick; research/sensors/ablation_levels.py gives a checkpoint's
         # mean levels. Named in every action's meta and in stats, so an ablated row
         # cannot pass for a whole one
         ablate: dict = field(default_factory=dict)

@@ -3,11 +3,11 @@
 ``physical`` (the default): the frame camera and the event sensor each model their chip
 on the scene's linear light (docs/sensors.md): ``camera.sensor="physical"`` and the
 emulator's "physical" preset. The checkpoints in checkpoints/ were trained on it (the
-sensor study, docs/study_sensors_plan.md).
+sensor study, research/sensors/plan.md).
 
 ``ideal8``: the benchmark before it, where both sensors read one ideal 8-bit render:
 ``camera.sensor="ideal8"`` and the emulator's "paper" preset (the paper's v2e settings).
-Its checkpoints are in checkpoints/ideal8/; docs/results/'s pages are its results.
+Its checkpoints are in checkpoints/ideal8/; research/ideal8/'s pages are its results.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""tools/studies/compare_evals.py: two evaluations pair on (modality, condition, scenario, episode
+"""tools/eval/compare_evals.py: two evaluations pair on (modality, condition, scenario, episode
 seed); evaluations of other episodes, and files that are not results.json, are refused by
 name; a cell only one side holds is named, not paired."""
 import json
@@ -11,7 +11,7 @@ from tests.tools_loader import tool_module
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("studies/compare_evals") as module:
+    with tool_module("eval/compare_evals") as module:
         yield module
 
 

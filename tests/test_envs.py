@@ -123,9 +123,9 @@ def test_the_env_plays_the_topology_s_frames_and_event_frames(tmp_path, task, co
 
 
 def test_the_expert_through_the_env_scores_what_sebvs_eval_scores(tmp_path):
-    """One seed, short episodes, through tools/studies/env_parity.py: the nav metrics
+    """One seed, short episodes, through tools/checks/env_parity.py: the nav metrics
     equal (every figure), the arm's grasp outcomes the same."""
-    with tool_module("studies/env_parity") as study:
+    with tool_module("checks/env_parity") as study:
         nav = study.compare("nav", "nominal", "indoor", seed=3, episodes=2, episode_s=1.5,
                             out=tmp_path / "nav")
         arm = study.compare("arm", "nominal", "multi", seed=3, episodes=1, episode_s=None,

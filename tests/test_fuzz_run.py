@@ -1,4 +1,4 @@
-"""tools/studies/fuzz_run.py on a live run, small: every hostile message counted under its kind,
+"""tools/checks/fuzz_run.py on a live run, small: every hostile message counted under its kind,
 the input alive after each (oversized ones included), both actors ended as asked."""
 import json
 import subprocess
@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_fuzz_run_counts_every_hostile_message_and_no_input_is_cut_off(tmp_path):
     out = tmp_path / "fuzz.json"
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "studies" / "fuzz_run.py"),
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "checks" / "fuzz_run.py"),
                            "--messages", "700", "--oversize-every", "20", "--json", str(out)],
                           cwd=ROOT, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]

@@ -1,4 +1,4 @@
-"""tools/studies/machine_parity.py: a snapshot compared with itself is identical; a render
+"""tools/checks/machine_parity.py: a snapshot compared with itself is identical; a render
 that differs by 1 DN in one pixel, or a missing piece, is named with its size."""
 import subprocess
 import sys
@@ -10,11 +10,11 @@ import pytest
 from tests.tools_loader import tool_module
 
 ROOT = Path(__file__).resolve().parents[1]
-TOOL = ROOT / "tools" / "studies" / "machine_parity.py"
+TOOL = ROOT / "tools" / "checks" / "machine_parity.py"
 
 
 def test_difference_measures_each_kind_in_its_unit():
-    with tool_module("studies/machine_parity") as tool:
+    with tool_module("checks/machine_parity") as tool:
         img = np.zeros((2, 4, 4, 3), np.uint8)
         other = img.copy()
         other[1, 2, 3, 0] = 3
@@ -30,7 +30,7 @@ def test_difference_measures_each_kind_in_its_unit():
 
 
 def test_compare_names_what_differs_and_what_one_side_lacks():
-    with tool_module("studies/machine_parity") as tool:
+    with tool_module("checks/machine_parity") as tool:
         a = {"nav_indoor/qpos": np.arange(3.0), "rng/normal": np.ones(5)}
         b = {"nav_indoor/qpos": np.arange(3.0) + [0, 0, 1e-12]}
         report = tool.compare(a, b)

@@ -1,4 +1,4 @@
-"""tools/studies/plot_cells.py: one modality's rate per cell across evaluations, beside no action."""
+"""tools/eval/plot_cells.py: one modality's rate per cell across evaluations, beside no action."""
 import json
 from pathlib import Path
 
@@ -26,7 +26,7 @@ def _results(path: Path, event_rates: dict, baseline: float | None) -> Path:
 
 
 def test_cell_rates_pair_each_cell_with_its_no_action_mean(tmp_path):
-    with tool_module("studies/plot_cells") as tool:
+    with tool_module("eval/plot_cells") as tool:
         path = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4],
                                          ("fast", "outdoor"): [1.0]}, baseline=0.3)
         cells = tool.cell_rates(tool.read_results(path), "event", "success")
@@ -37,7 +37,7 @@ def test_cell_rates_pair_each_cell_with_its_no_action_mean(tmp_path):
 
 
 def test_main_draws_and_writes_every_evaluation(tmp_path, capsys):
-    with tool_module("studies/plot_cells") as tool:
+    with tool_module("eval/plot_cells") as tool:
         a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2, 0.4]}, baseline=0.3)
         b = _results(tmp_path / "b", {("nominal", "indoor"): [0.9, 0.7]}, baseline=None)
         out, js = tmp_path / "cells.png", tmp_path / "cells.json"
@@ -52,7 +52,7 @@ def test_main_draws_and_writes_every_evaluation(tmp_path, capsys):
 
 
 def test_main_names_what_is_wrong(tmp_path, capsys):
-    with tool_module("studies/plot_cells") as tool:
+    with tool_module("eval/plot_cells") as tool:
         a = _results(tmp_path / "a", {("nominal", "indoor"): [0.2]}, baseline=None)
         with pytest.raises(SystemExit):
             tool.main([str(a), "--labels", "x,y", "--modality", "event", "--out",
@@ -69,7 +69,7 @@ def test_main_names_what_is_wrong(tmp_path, capsys):
 
 def test_arm_grasp_success_skips_home_episodes_and_takes_a_modality_per_evaluation(
         tmp_path, capsys):
-    with tool_module("studies/plot_cells") as tool:
+    with tool_module("eval/plot_cells") as tool:
         def arm(name, modality, grasps):
             eps = [{"modality": modality, "condition": "fast", "scenario": "single",
                     "seed": i, "metrics": {"grasp_success": g}} for i, g in enumerate(grasps)]

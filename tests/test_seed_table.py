@@ -1,4 +1,4 @@
-"""tools/studies/seed_table.py: training seeds of two modalities on the same episodes, per cell."""
+"""tools/eval/seed_table.py: training seeds of two modalities on the same episodes, per cell."""
 import json
 
 import pytest
@@ -29,7 +29,7 @@ def test_a_reading_needs_the_mean_and_every_run(tmp_path):
                       {"fast/multi": [True] * 8 + [False] * 2,
                        "nominal/multi": [True] * 9 + [False]}),
     }
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         table = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10)
         md = tool.markdown(table)
     fast, nominal = table["cells"]["fast/multi"], table["cells"]["nominal/multi"]
@@ -42,7 +42,7 @@ def test_a_reading_needs_the_mean_and_every_run(tmp_path):
     assert nominal["mean_diff"] == pytest.approx(0.15) and nominal["behind"] == 1
     assert nominal["reading"] == "no clear difference"     # the mean alone is not enough
     assert "| fast/multi | +30.0 | +20.0 | 100.0 | 75.0 | +25.0 | 2 / 0 |" in md
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         loose = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10, min_ahead=1)
     assert loose["cells"]["nominal/multi"]["reading"] == "rgb+event helps"
 
@@ -52,7 +52,7 @@ def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
                           {"moving/single": [False, None, True]}),
             "s1": results({"moving/single": [True, None, False]},
                           {"moving/single": [True, None, False]})}
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         cell = tool.seed_table(runs, "rgb+event", "rgb")["cells"]["moving/single"]
         assert cell["per_run"]["s0"]["n"] == 2 and cell["episodes"]["n"] == 2
         assert cell["mean_diff"] == pytest.approx(0.25)
@@ -99,7 +99,7 @@ def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
             (d / "results.json").write_text(json.dumps(only(res, modality)))
     out = tmp_path / "t.json"
     spec = [f"{n}={tmp_path / (n + '-' + m)}" for n in runs for m in ("rgb+event", "rgb")]
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         assert tool.main([*spec, "--a", "rgb+event", "--b", "rgb", "--json", str(out)]) == 0
         joined = json.loads(out.read_text())["cells"]["fast/multi"]
         assert joined == tool.seed_table(runs, "rgb+event", "rgb")["cells"]["fast/multi"]
@@ -125,7 +125,7 @@ def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
             (d / "results.json").write_text(json.dumps(rgb_only(wins)))
             spec.append(f"{name}{'@' + tag if tag else ''}={d}")
     out = tmp_path / "t.json"
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out)]) == 0
         with pytest.raises(SystemExit):
             tool.main([f"s0@={tmp_path / 's0'}", "--a", "rgb", "--b", "rgb"])
@@ -138,14 +138,14 @@ def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
 
 def test_a_mean_that_sums_to_zero_prints_plus_zero():
     """Seeds at -5, +5 and 0 points average to -1e-17 in floating point; the printed table
-    says +0.0 there, as the study's report does (tools/studyio.py points)."""
+    says +0.0 there, as the study's report does (research/ideal8/studyio.py points)."""
     cell = {"per_run": {"s0": {"diff": -0.05}, "s1": {"diff": 0.05}, "s2": {"diff": 0.0}},
             "mean_a": 0.9, "mean_b": 0.9, "mean_diff": -1e-17, "ahead": 1, "behind": 1,
             "episodes": {"ci95": [-0.05, 0.05], "p_sign": 1.0}, "reading": "no clear difference"}
     table = {"a": "rgb+event", "b": "rgb+diff", "runs": ["s0", "s1", "s2"], "metric": "m",
              "rule": {"min_diff_points": 10, "min_ahead": 3}, "cells": {"x/y": cell},
              "left_out": []}
-    with tool_module("studies/seed_table") as tool:
+    with tool_module("eval/seed_table") as tool:
         row = tool.markdown(table).splitlines()[-1]
     assert row == ("| x/y | -5.0 | +5.0 | +0.0 | 90.0 | 90.0 | +0.0 | 1 / 1 | [-5.0, +5.0], 1 "
                    "| no clear difference |")

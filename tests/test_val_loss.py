@@ -1,4 +1,4 @@
-"""tools/studies/val_loss.py: a checkpoint tells whether a dataset holds the validation
+"""tools/eval/val_loss.py: a checkpoint tells whether a dataset holds the validation
 frames it was trained on."""
 import json
 
@@ -22,7 +22,7 @@ def trained(tmp_path_factory):
 
 def test_the_same_frames_give_the_recorded_loss(trained, tmp_path):
     data, pt = trained
-    with tool_module("studies/val_loss") as tool:
+    with tool_module("eval/val_loss") as tool:
         out = tmp_path / "r.json"
         assert tool.main([str(pt), str(data), "--json", str(out)]) == 0
         result = json.loads(out.read_text())
@@ -39,7 +39,7 @@ def test_one_changed_validation_frame_is_seen(trained, tmp_path):
     with h5py.File(changed / val[0], "r+") as f:
         f["events/frame"][3] = f["events/frame"][3] + 1   # one frame's event counts
     reindex(changed)            # a recording that differs, not a damaged one
-    with tool_module("studies/val_loss") as tool:
+    with tool_module("eval/val_loss") as tool:
         out = tmp_path / "r.json"
         assert tool.main([str(pt), str(changed), "--json", str(out)]) == 1
         assert json.loads(out.read_text())["relative_difference"] > 1e-6
@@ -49,7 +49,7 @@ def test_a_dataset_without_the_validation_episodes_is_refused(trained, tmp_path,
     data, pt = trained
     val = json.loads(pt.with_suffix(".json").read_text())["dataset"]["val_episodes"]
     short = copy_without(data, tmp_path / "short", val[0])
-    with tool_module("studies/val_loss") as tool:
+    with tool_module("eval/val_loss") as tool:
         assert tool.main([str(pt), str(short)]) == 2
         assert f"lacks 1 of the checkpoint's validation episodes ({val[0]})" in \
             capsys.readouterr().err

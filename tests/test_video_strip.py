@@ -1,4 +1,4 @@
-"""tools/studies/video_strip.py: evenly spaced frames of each video, one row per video."""
+"""tools/eval/video_strip.py: evenly spaced frames of each video, one row per video."""
 from pathlib import Path
 
 import cv2
@@ -18,14 +18,14 @@ def _video(path: Path, frames: int, size=(64, 48)) -> Path:
 
 
 def test_frames_are_spread_from_skip_to_the_last(tmp_path):
-    with tool_module("studies/video_strip") as tool:
+    with tool_module("eval/video_strip") as tool:
         frames = tool.read_frames(_video(tmp_path / "a.avi", 21), count=3, skip=2)
         # frames 2, 11 and 20 of 0..20
         assert [round(float(f.mean()) / 10) for f in frames] == [2, 11, 20]
 
 
 def test_strip_has_a_row_per_video_and_scaled_frames(tmp_path):
-    with tool_module("studies/video_strip") as tool:
+    with tool_module("eval/video_strip") as tool:
         a, b = _video(tmp_path / "a.avi", 12), _video(tmp_path / "b.avi", 8)
         out = tmp_path / "strip.png"
         assert tool.main([str(a), str(b), "--frames", "4", "--skip", "0", "--width", "32",
@@ -38,7 +38,7 @@ def test_strip_has_a_row_per_video_and_scaled_frames(tmp_path):
 
 
 def test_bad_input_is_named(tmp_path, capsys):
-    with tool_module("studies/video_strip") as tool:
+    with tool_module("eval/video_strip") as tool:
         junk = tmp_path / "junk.mp4"
         junk.write_bytes(b"not a video")
         assert tool.main([str(junk), "--out", str(tmp_path / "x.png")]) == 2

@@ -1,4 +1,4 @@
-"""Study helpers of tools/studies/work_precision.py: event metrics on hand-made streams, physics
+"""Study helpers of tools/checks/work_precision.py: event metrics on hand-made streams, physics
 runs against a reference, the synthetic policy data, all in a few seconds."""
 import numpy as np
 import pytest
@@ -162,7 +162,7 @@ def test_work_precision_tool_writes_the_summary_format(tmp_path, monkeypatch):
     import json
     from pathlib import Path
     monkeypatch.chdir(tmp_path)          # main() moves into --out; monkeypatch restores
-    path = Path(__file__).resolve().parents[1] / "tools" / "studies" / "work_precision.py"
+    path = Path(__file__).resolve().parents[1] / "tools" / "checks" / "work_precision.py"
     spec = importlib.util.spec_from_file_location("work_precision_tool", path)
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)

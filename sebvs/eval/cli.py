@@ -126,7 +126,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--sensor", choices=SENSORS, default=DEFAULT_SENSOR,
                    help="the sensor pair: physical (default; the frame camera and the event "
                         "sensor on the scene's linear light, docs/sensors.md) or ideal8 (the "
-                        "8-bit benchmark before it, the pair of docs/results/'s pages); it "
+                        "8-bit benchmark before it, the pair of research/ideal8/'s pages); it "
                         "picks the conditions and the default checkpoints (checkpoints/ or "
                         "checkpoints/ideal8/)")
     e.add_argument("--conditions", default=None,

@@ -6,6 +6,6 @@ pid       PID with derivative on measurement, output limits, clamp/back-calculat
           anti-windup
 nav       the navigation expert: two-axis PID on the detection, hold-then-search when lost
 arm       the arm expert: wrist camera rgb + depth -> pre-grasp pose, HOME rule
-rollout   in-process closed-loop nav episodes (tests, tools/studies/expert_study.py)
+rollout   in-process closed-loop nav episodes (tests, tools/checks/expert_study.py)
 Modules are imported on use: a nav process never imports the arm code.
 """

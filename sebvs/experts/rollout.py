@@ -1,5 +1,5 @@
 """Closed-loop navigation episodes in one process (no actors): scene physics + front-camera
-render + detector + expert, for tests and tools/studies/expert_study.py.
+render + detector + expert, for tests and tools/checks/expert_study.py.
 
 The loop mirrors the sim actor's lockstep order: at each control tick the truth and the
 frame are taken of the current state, the expert's command is applied, then the scene is

@@ -11,5 +11,5 @@ arm_cases       the arm scene's cases and their plausibility test
 dvs_cases       the emulator's extreme cases
 dvs_adapter     the one place the studies touch the emulator's API
 
-tools/studies/work_precision.py and tools/studies/stability_sweep.py are the command lines.
+tools/checks/work_precision.py and tools/checks/stability_sweep.py are the command lines.
 """

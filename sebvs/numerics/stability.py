@@ -15,7 +15,7 @@ class:
               gap; for emulator cases, any other exception, a numpy RuntimeWarning or
               insane events (sebvs/numerics/dvs_cases.py)
 
-The grids (QUICK for the test suite, FULL for tools/studies/stability_sweep.py):
+The grids (QUICK for the test suite, FULL for tools/checks/stability_sweep.py):
   nav_servo    servo_gain x integrator x timestep, commands alternating every 0.5 s
   nav_contact  wall contact solref time constant = ratio x timestep (refsafe off), the
                robot driven into a wall of a 3 m room, x integrator x timestep
@@ -34,9 +34,9 @@ The grids (QUICK for the test suite, FULL for tools/studies/stability_sweep.py):
                cutoff extremes, a time step backwards), sebvs/numerics/dvs_cases.py.
 
 Counts (stable / detected / undetected), 2 shared cores, load average 2.6-2.8 (`uptime`):
-  tools/studies/stability_sweep.py --quick --out DIR   180 cases, 6.5 s: 143 / 37 / 0
+  tools/checks/stability_sweep.py --quick --out DIR   180 cases, 6.5 s: 143 / 37 / 0
       nav_servo 24/0/0, nav_contact 18/6/0, belt 46/18/0, arm 46/10/0, dvs 9/3/0
-  tools/studies/stability_sweep.py --out DIR           2336 cases, 168 s: 1465 / 869 / 2
+  tools/checks/stability_sweep.py --out DIR           2336 cases, 168 s: 1465 / 869 / 2
       nav_servo 96/0/0, nav_contact 56/24/0, belt 836/662/2, arm 450/174/0, dvs 27/9/0
   The 2 undetected are belt cases (a box dropped 5 m onto a 20 m/s belt at 10 ms,
   `discrete`, ends sunk 3.7 cm: the minimal belt MJCF's Limits declare no solid boxes).

@@ -38,7 +38,7 @@ from sebvs.runtime.params import Range, clip, coerce_param, param_fields, short_
 MODALITIES = ("rgb", "event", "rgb+event")
 # controls: not the paper's modalities, but inputs that test a claim about them. rgb+diff
 # asks whether events give a policy more than a frame camera's own change between two
-# frames would (docs/results/events_vs_frame_difference.md). Trained and
+# frames would (research/ideal8/events_vs_frame_difference.md). Trained and
 # evaluated when named; never part of "all" or of the default rows
 CONTROL_MODALITIES = ("rgb+diff",)
 # which observation streams a modality reads, in channel order

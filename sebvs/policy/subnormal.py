@@ -4,7 +4,7 @@ Weights that get no gradient from the data (dead units) decay under weight decay
 they are subnormal: non-zero, below float32's smallest normal (1.18e-38). Added to a sum of
 normal numbers they change nothing, but a CPU multiplies them through slow microcode: a
 nav ERP training step with 17 % of its weights subnormal took 5.8x as long as with them
-flushed (tools/bench/bench_denormal.py; docs/study_sensors_log.md, 2026-11-27).
+flushed (tools/bench/bench_denormal.py; research/sensors/log.md, 2026-11-27).
 
 Zeroing them after every optimizer step (`sebvs train --zero-subnormals`) is the software
 form of the CPU's flush-to-zero. It does the same on every machine and at any thread

@@ -1,6 +1,6 @@
 """Hostile messages for one input, by class, and the counter each must land in.
 
-What tools/studies/fuzz_run.py sends through a live run (actors/fuzz.py): every class of message a
+What tools/checks/fuzz_run.py sends through a live run (actors/fuzz.py): every class of message a
 broken or hostile producer can put on a topic, made from a seeded generator, each with the
 place a receiving input must count it (`EXPECTED`). A message of any class must be counted
 there and must not stop the input: the next valid message is handled.
