@@ -280,7 +280,11 @@ def test_a_long_gap_restarts_the_sensor_quickly_with_no_noise_flood(size, gap_s)
     ev = emu.step(f + 50, t1)
     assert time.perf_counter() - start < 2.0
     assert ev.size == 0 and emu.gap_restarts == 1 and emu.t_ns == t1
-    assert np.array_equal(emu.lp, linlog(f + 50)) and np.array_equal(emu.base, emu.lp)
+    assert np.array_equal(emu.lp, linlog(f + 50))
+    # the memorised level restarts from the new frame, less a random phase of the leak
+    # (preset_version 2; version 1 restarted it at the frame's level: tests/test_dvs_noise.py)
+    below = emu.lp - emu.base
+    assert (below >= 0).all() and (below <= emu.theta_on + 1e-6).all()   # float32 rounding
     ev = emu.step(f + 60, t1 + 10_000_000)      # the stream goes on from the new frame
     assert ev.size and t1 < ev["t"].min() and ev["t"].max() <= t1 + 10_000_000
 
@@ -349,14 +353,18 @@ def _sequence(n=30, h=24, w=32):
 
 @pytest.mark.parametrize("name, kw, expected", [
     ("paper", {}, (83, "269343aef9381890")),
-    ("noisy", {"downsample": 1.0}, (6768, "06996c53b82ca470")),
+    ("paper", {"preset_version": 1}, (83, "269343aef9381890")),
+    ("noisy", {"downsample": 1.0, "preset_version": 1}, (6768, "06996c53b82ca470")),
     ("clean", {"blur": False}, (1039, "a8a689e7027d27a4")),
-    ("noisy", {"leak_rate_hz": 20.0, "shot_noise_rate_hz": 50.0, "seed": 5},
-     (4275, "14c9f898ea83f469")),
+    ("clean", {"blur": False, "preset_version": 1}, (1039, "a8a689e7027d27a4")),
+    ("noisy", {"leak_rate_hz": 20.0, "shot_noise_rate_hz": 50.0, "seed": 5,
+               "preset_version": 1}, (4275, "14c9f898ea83f469")),
 ])
 def test_normal_streams_give_the_same_events_as_before_the_gap_bound(name, kw, expected):
     # hashes computed with the emulator before max_gap_s and the int64 checks: frame
-    # intervals up to 2 s must come out bit for bit as they did
+    # intervals up to 2 s must come out bit for bit as they did. preset_version 1 is the
+    # noise model of then (issue 67 made version 2); paper and clean have no noise, so
+    # both versions give their bytes
     emu = EventEmulator(preset(name, **kw))
     ev = np.concatenate([emu.step(f, t) for f, t in _sequence()])
     assert (ev.size, hashlib.sha256(ev.tobytes()).hexdigest()[:16]) == expected

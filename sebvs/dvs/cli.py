@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .params import PRESETS
+from .params import PRESET_VERSION, PRESET_VERSIONS, PRESETS
 
 
 FORCE_HELP = "replace OUT if it exists (never an input, an episode or a dataset's index)"
@@ -20,6 +20,7 @@ def _cmd_v2e(args) -> int:
         check_output_file(args.out, inputs=[args.input], force=args.force)
         overrides = {k: v for k, v in (("seed", args.seed), ("max_gap_s", args.max_gap_s))
                      if v is not None}
+        overrides["preset_version"] = args.preset_version
         params = preset(args.preset, **overrides)
         info = convert(args.input, args.out, params, fps=args.fps, progress=not args.quiet)
     except (ValueError, OSError) as exc:
@@ -63,6 +64,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("input", help="video file, or folder of images (sorted by name)")
     v.add_argument("--out", required=True, help="output .h5 file")
     v.add_argument("--preset", default="paper", choices=sorted(PRESETS))
+    v.add_argument("--preset-version", type=int, default=PRESET_VERSION,
+                   choices=PRESET_VERSIONS,
+                   help=f"the presets' noise model (default {PRESET_VERSION}; 1: as before "
+                        "issue 67, docs/dvs.md)")
     v.add_argument("--fps", type=float, default=None,
                    help="frame rate (required for image folders; overrides a video's)")
     v.add_argument("--seed", type=int, default=None)

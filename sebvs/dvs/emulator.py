@@ -1,4 +1,5 @@
-"""The DVS pixel model of v2e, in our own vectorised code, with v2e's timing defects fixed.
+"""The DVS pixel model of v2e, in our own vectorised code, with v2e's timing defects fixed;
+where its noise departs from v2e's, docs/dvs.md's table says so and by how much.
 
 Per pixel, for 8-bit luma x (DN):
     L   = lin-log(x): x * ln(20)/20 for x <= 20, ln(x) above (no log of zero)
@@ -8,8 +9,16 @@ Per pixel, for 8-bit luma x (DN):
           exact and saturates); cutoff_hz = 0 disables the filter (lp = L)
     base, the memorised level: every crossing of base + k * theta (k = 1..n) is an event,
           and base moves by the emitted multiples; the remainder carries over
-    leak: base drifts down by dt * leak_rate * theta_on (per-pixel rate), giving ON events
-    shot noise: events at rate shot_noise_rate_hz, lower at bright pixels
+    leak: base drifts down by dt * leak_rate * theta_on (per-pixel rate), giving ON events;
+          from preset_version 2 each pixel starts at a random phase of it (a running
+          pixel's memorised level sits anywhere within a threshold below the light), so
+          the rate holds from the first frame; version 1 starts every pixel at zero phase,
+          and none fires before 1 / leak_rate_hz
+    shot noise: events at rate shot_noise_rate_hz times 1 - 0.75 min(x / 255, 1), per
+          pixel spread log-normally by noise_rate_cov_decades; from preset_version 2 the
+          rates are scaled by the spread's median over its mean, so the stated rate is the
+          array's mean (version 1: its median; the mean 1.94x it at 0.5 decades); at most
+          one event per pixel and frame
     refractory: events of a pixel closer than refractory_period_s to its previous one are
           dropped (the memorised level still follows the crossings)
     gaps: frames further apart than max_gap_s, forward or back, restart the sensor (state
@@ -21,9 +30,11 @@ Per pixel, for 8-bit luma x (DN):
 Linear light (step_luminance): a frame of scene luminance in cd/m^2, float, with no upper
 bound, is mapped to DN-equivalents x = 255 * L / reference_cd_m2 and runs through the same
 model unclipped: the log range is the chip's, not 8 bits', and the photoreceptor's
-bandwidth a = (x + 20) / 275 and the shot-noise rate (full below x = 0, a quarter at and
-above x = 255) follow the light as in v2e, so a dusk scene (x of a few DN) has a slow,
-noisy pixel and a sunlit one a fast, clean one. reference_cd_m2 is the luminance the
+bandwidth a = (x + 20) / 275 follows the light as in v2e, so a dusk scene (x of a few DN)
+has a slow pixel and a sunlit one a fast one. The shot-noise rate falls with the light
+(full at x = 0, a quarter at x = 255) and stays at a quarter above: not v2e's, whose line
+1 - 0.75 (x + 20) / 275, written for 8-bit input, reaches zero at x = 347 and gives no shot
+noise above (1.73 cd/m^2 on the physical preset). reference_cd_m2 is the luminance the
 chip's 8-bit-era parameters were set for: the paper's cutoff_hz holds at x = 255.
 
 Timing: the k-th crossing of a pixel is placed where the straight line from the previous
@@ -44,7 +55,7 @@ import math
 import cv2
 import numpy as np
 
-from .params import EmulatorParams
+from .params import EmulatorParams, lognormal_mean
 
 EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])
 THRESHOLD_FLOOR = 0.01
@@ -230,9 +241,13 @@ class EventEmulator:
         jitter = 1 + p.leak_jitter_fraction * rng.standard_normal((h, w))
         self.leak = (p.leak_rate_hz * np.maximum(jitter, 0)).astype(np.float32) \
             * self.theta_on
-        self.noise_rate = (p.shot_noise_rate_hz
-                           * 10.0 ** (p.noise_rate_cov_decades * rng.standard_normal((h, w)))
-                           ).astype(np.float32)
+        spread = 10.0 ** (p.noise_rate_cov_decades * rng.standard_normal((h, w)))
+        rate = p.shot_noise_rate_hz
+        if p.preset_version >= 2:
+            # the log-normal's median is 1 and its mean exp((c ln 10)^2 / 2): scaled, the
+            # stated rate is the array's mean, as its name says (1.94x more at 0.5 decades)
+            rate /= lognormal_mean(p.noise_rate_cov_decades)
+        self.noise_rate = (rate * spread).astype(np.float32)
         self._start(luma, t_ns, log)
 
     def _start(self, luma: np.ndarray, t_ns: int, log=linlog) -> None:
@@ -241,6 +256,11 @@ class EventEmulator:
         self.lp = log(luma)
         self.l_in = self.lp          # the unfiltered level of the last frame (linear hold)
         self.base = self.lp.copy()
+        if self.params.preset_version >= 2 and self.params.leak_rate_hz > 0:
+            # a pixel that has been running sits at any phase of its leak; all at zero
+            # phase, none would fire before 1 / leak_rate_hz (20 s on the physical preset,
+            # ten arm episodes) and then all together
+            self.base -= self.rng.random(self.shape, dtype=np.float32) * self.theta_on
         self.last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, np.int64)
         self.t_ns = t_ns
 

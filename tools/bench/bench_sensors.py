@@ -26,8 +26,15 @@ cells: per nav cell (nominal, hdr, dusk, dusk_fast; indoor and outdoor; without 
   hdr and dusk_fast; expert >= 0.95 everywhere.
 Also: snr (the preset's SNR against illuminance, lux at SNR 1 at 10 and 33 ms), step (a
 10^4 : 1 step: lost frame pixels and event edge coverage per side), radiance details.
+event_noise: the event sensor's noise on a still uniform field of linear light, events per
+  pixel per second, per emulator preset, preset version (the current one, and 1, which the
+  shipped topologies pin) and light level (0.01, 1, 100 cd/m^2), measured on the emulator
+  (sebvs/dvs/noise.py: 128 x 128, 5 s at 100 frames a second, seed 0) beside the rate the
+  model states (docs/dvs.md, "Noise and preset versions"); event_noise_worst_ratio is the
+  measured over the stated rate furthest from 1 (tests/test_dvs_noise.py: within 10 %).
 
     tools/bench/bench_sensors.py [--quick] [--json FILE] [--plot FILE.png] [--seeds N]
+    tools/bench/bench_sensors.py --noise-only [--json FILE]
 """
 from __future__ import annotations
 
@@ -41,6 +48,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from sebvs.dvs import noise  # noqa: E402
 from sebvs.sensors import validate  # noqa: E402  (sets MUJOCO_GL before mujoco)
 from sebvs.sensors.framecam import preset  # noqa: E402
 
@@ -138,6 +146,31 @@ def plot(out: dict, path: str) -> None:
     fig.savefig(path, dpi=110)
 
 
+def measure_event_noise(progress) -> dict:
+    """The event sensor's static-scene noise per preset, version and light level, measured
+    beside the stated rate (sebvs/dvs/noise.py); one progress line per noisy cell.
+
+    Parameters:
+        progress: takes one line of text.
+    Returns:
+        {"rows": noise.noise_table()'s rows, "worst_ratio": the measured over the stated
+        rate furthest from 1, "config": how it was measured}.
+    """
+    rows = noise.noise_table()
+    for r in rows:
+        if r["stated_hz"]:
+            progress(f"event noise {r['preset']:8s} version {r['preset_version']} at "
+                     f"{r['luminance_cd_m2']:g} cd/m^2: {r['measured_hz']:.4g} events/px/s "
+                     f"(stated {r['stated_hz']:.4g}, ratio {r['ratio']:.3f})")
+    silent = [r["measured_hz"] for r in rows if not r["stated_hz"]]
+    progress(f"event noise where none is stated (paper, clean): at most {max(silent)} "
+             "events/px/s")
+    ratios = [r["ratio"] for r in rows if r["ratio"] is not None]
+    return {"rows": rows, "worst_ratio": max(ratios, key=lambda q: abs(q - 1)),
+            "config": {"side": noise.SIDE, "seconds": noise.SECONDS, "fps": noise.FPS,
+                       "seed": 0, "levels_cd_m2": list(noise.LEVELS_CD_M2)}}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
@@ -146,6 +179,8 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=0, help="seeds per cell (default 1 quick, 3)")
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     ap.add_argument("--plot", metavar="FILE", help="SNR curve, radiance decode, cells (PNG)")
+    ap.add_argument("--noise-only", action="store_true",
+                    help="only the event sensor's noise (event_noise; a few seconds)")
     args = ap.parse_args()
     seeds = list(range(args.seeds or (1 if args.quick else 3)))
     variants = ("indoor",) if args.quick else ("indoor", "outdoor")
@@ -155,6 +190,15 @@ def main() -> int:
         print(line, file=sys.stderr, flush=True)
 
     t0 = time.perf_counter()
+    if args.noise_only:
+        event_noise = measure_event_noise(progress)
+        out = {"event_noise_worst_ratio": event_noise["worst_ratio"],
+               "event_noise": event_noise}
+        print(json.dumps(out, indent=1))
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(out, indent=1))
+        return 0
     camera = preset("mv_global_shutter")
     radiance = validate.radiance_range()
     progress(f"radiance: {radiance['dynamic_range_db']:.1f} dB, max error "
@@ -170,6 +214,7 @@ def main() -> int:
     snr = {"curves": [validate.snr_curve(camera, t) for t in (0.01, 1 / 30)]}
     step = validate.step_range()
     progress(f"step 1e4:1: {json.dumps({k: step[k] for k in ('dim', 'bright')})}")
+    event_noise = measure_event_noise(progress)
     rows = run_cells(variants, seeds, episode_s, progress, flicker=not args.quick)
     means = cell_means(rows)
     hdr = [m for m in means if m["cell"] == "hdr" and m["variant"] != "arm"]
@@ -181,6 +226,7 @@ def main() -> int:
         "blur_length_error_camera_defaults": round(blur_default["blur_length_error"], 4),
         "hdr_target_lost_fraction": min(m["target_lost_fraction"] for m in hdr),
         "hdr_event_edge_coverage": min(m["event_edge_coverage"] for m in hdr),
+        "event_noise_worst_ratio": event_noise["worst_ratio"],
         "detector_hit_rate": {f"{m['variant']}/{m['cell']}": m["detector_hit_rate"]
                               for m in means},
         "event_edge_coverage": {f"{m['variant']}/{m['cell']}": m["event_edge_coverage"]
@@ -188,6 +234,7 @@ def main() -> int:
         "cell_means": means, "cells": rows, "radiance": radiance, "ptc": ptc, "blur": blur,
         "blur_camera_defaults": blur_default,
         "snr": snr, "step": step,
+        "event_noise": event_noise,
         "config": {"quick": args.quick, "seeds": seeds, "episode_s": episode_s,
                    "variants": list(variants), "frame_camera": "mv_global_shutter",
                    "event_preset": "physical", "control_hz": 10.0,
@@ -196,7 +243,8 @@ def main() -> int:
     summary = {k: out[k] for k in ("dynamic_range_db", "ptc_gain_error", "ptc_read_noise_error",
                                    "blur_length_error", "blur_length_error_camera_defaults",
                                    "hdr_target_lost_fraction",
-                                   "hdr_event_edge_coverage", "detector_hit_rate",
+                                   "hdr_event_edge_coverage", "event_noise_worst_ratio",
+                                   "detector_hit_rate",
                                    "event_edge_coverage")}
     print(json.dumps(summary, indent=1))
     if args.json:
