@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from actors.policy import Policy
+from sebvs_actors.policy import Policy
 
 
 class NaNPolicy(Policy):

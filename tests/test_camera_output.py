@@ -10,8 +10,8 @@ import hashlib
 import numpy as np
 import pytest
 
-from actors.camera import Camera
-from actors.sim import Sim
+from sebvs_actors.camera import Camera
+from sebvs_actors.sim import Sim
 from sebvs.runtime import Message
 
 from tests.test_sim_actors import FakeNode

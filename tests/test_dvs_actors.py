@@ -70,7 +70,7 @@ def test_emulator_actor_counts_bad_frames_and_gap_restarts_and_goes_on():
     import asyncio
     import math
 
-    from actors.emulator import Emulator
+    from sebvs_actors.emulator import Emulator
     from sebvs.runtime.wire import Message
 
     node = _Node()

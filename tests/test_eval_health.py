@@ -255,7 +255,7 @@ class AnsweringNode:
 def test_the_sims_episode_end_carries_its_counters_by_tick(clock):
     """0.5 s at 20 Hz: 11 ticks; the commands for the 10 before the last are counted (the
     last one's, which drives no step, is not, though it comes before the end here)."""
-    from actors.sim import Sim
+    from sebvs_actors.sim import Sim
     node = AnsweringNode()
     sim = Sim("sim", Sim.Params(episode_s=0.5, render_hz=100.0, episodes=2, linger_s=0.0,
                                 action_timeout_s=0.05),

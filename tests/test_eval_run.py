@@ -126,7 +126,7 @@ def test_test_split_runs_reserved_seeds_over_both_nav_variants(tmp_path):
     """`--split test`: the topology seed is the reserved range's first, every row plays the
     same episodes in the indoor and the outdoor scene, and holding still scores below the
     expert on them."""
-    from actors.sim import episode_seed
+    from sebvs_actors.sim import episode_seed
     from sebvs.runtime.topology import load_topology
 
     plan = EvalPlan(task="nav", modalities=[], conditions=["nominal"], episodes=2,

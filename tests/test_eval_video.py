@@ -5,7 +5,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from actors.video import MAX_PENDING, VideoWriter
+from sebvs_actors.video import MAX_PENDING, VideoWriter
 from sebvs.eval.video import (CAPTION_PX, EpisodeVideo, caption, centre_error_px,
                               compose_frame, count_frames)
 from sebvs.runtime import Message

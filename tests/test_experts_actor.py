@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from actors.expert import Expert
+from sebvs_actors.expert import Expert
 from sebvs.runtime import Message
 from sebvs.runtime.supervisor import run_topology
 

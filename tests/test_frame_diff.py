@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from actors.policy import Policy
+from sebvs_actors.policy import Policy
 from sebvs.eval.run import EvalPlan, Run
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.dataset import EpisodeFrames, load_index, previous_rgb

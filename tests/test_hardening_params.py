@@ -77,7 +77,7 @@ def test_error_messages_do_not_echo_huge_values():
 def test_every_shipped_actor_accepts_its_own_defaults():
     annotated = 0
     for mod in ACTOR_MODULES:
-        module = importlib.import_module(f"actors.{mod}")
+        module = importlib.import_module(f"sebvs_actors.{mod}")
         for cls in vars(module).values():
             if not (isinstance(cls, type) and hasattr(cls, "Params") and cls.__module__ ==
                     module.__name__):
@@ -128,7 +128,7 @@ def test_topology_queue_latest_and_valid_values_load(tmp_path):
 
 
 def test_ctl_set_uses_the_same_schema_and_keeps_the_old_value():
-    from actors.synthetic import PatternSource
+    from sebvs_actors.synthetic import PatternSource
     src = PatternSource("source", PatternSource.Params(width=32, height=16))
 
     async def go():

@@ -23,16 +23,23 @@ LAYERS = (
     {"sebvs.sensors"},
     {"sebvs.policy"},
     {"sebvs.eval", "sebvs.numerics"},
-    {"sebvs.cli", "sebvs.demo", "actors"},
+    {"sebvs.cli", "sebvs.demo", "sebvs_actors"},
     # the field's tools on top of everything: Gymnasium environments, the rerun viewer
     {"sebvs.envs", "sebvs.view"},
 )
 RANK = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}
 
 
+def canonical(module: str) -> str:
+    """The actors/ folder is the package sebvs_actors (pyproject.toml's package-dir);
+    `actors.X`, its historical spelling, names the same module."""
+    head, dot, rest = module.partition(".")
+    return "sebvs_actors" + dot + rest if head == "actors" else module
+
+
 def module_name(path: Path, root: Path = ROOT) -> str:
     parts = path.relative_to(root).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    return canonical(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
 
 
 def imported_modules(path: Path, name: str, known: set[str]) -> set[str]:
@@ -41,12 +48,14 @@ def imported_modules(path: Path, name: str, known: set[str]) -> set[str]:
     found = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
+            targets = [canonical(a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 anchor = package.split(".")[:len(package.split(".")) - node.level + 1]
                 base = ".".join(anchor + ([base] if base else []))
+            else:
+                base = canonical(base)
             # `from pkg import mod` imports a module; `from mod import name` a name
             targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base
                        for a in node.names]

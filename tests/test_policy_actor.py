@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from actors.policy import Policy
+from sebvs_actors.policy import Policy
 from sebvs.policy.checkpoint import model_config, save_checkpoint
 from sebvs.policy.inputs import Normalisation, channels
 from sebvs.policy.model import ERP

@@ -304,7 +304,7 @@ def test_cli_trains_all_modalities_and_plots(tmp_path):
 
 def test_help_does_not_import_torch():
     code = ("import sys; from sebvs.cli import build_parser; build_parser(); "
-            "import actors.policy; print('torch' in sys.modules)")
+            "import sebvs_actors.policy; print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "False", out.stderr
 

@@ -76,7 +76,7 @@ def test_bad_cameras_and_small_offscreen_buffers_are_named():
 
 
 def test_the_camera_keeps_its_renderers_when_the_scene_changes():
-    from actors.camera import Camera
+    from sebvs_actors.camera import Camera
     from tests.test_sim_actors import FakeNode
     cam = Camera("camera", Camera.Params(luma_scale=0.5), seed=0, clock="lockstep",
                  consumed=frozenset({"rgb", "luma"}), node=FakeNode())

@@ -147,7 +147,7 @@ def test_param_coercion():
         coerce_param(Literal["a", "b"], "c", where="w")
     with pytest.raises(ValueError, match="expected int"):
         coerce_param(int, True, where="w")
-    from actors.synthetic import PatternSource
+    from sebvs_actors.synthetic import PatternSource
     with pytest.raises(ValueError, match="unknown key 'colour'"):
         build_params(PatternSource.Params, {"colour": 1}, where="w")
 

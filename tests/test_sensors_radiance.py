@@ -232,7 +232,7 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
     is exposed before its tick, while the auto exposure ramps up at dusk; states every
     10 ms leave the last of a 12 ms exposure's three sub-frames for the tick's own state.
     Either way the frames and their meta are those of rendering it all at the tick."""
-    from actors.camera import Camera
+    from sebvs_actors.camera import Camera
     from sebvs.sensors.camera import CameraCore
     from sebvs.sensors.rig import SensorRig
     states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64,
@@ -272,7 +272,7 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
 
 
 def test_a_bad_next_tick_time_costs_the_rendering_ahead_not_the_frames():
-    from actors.camera import Camera
+    from sebvs_actors.camera import Camera
     from sebvs.sensors.camera import CameraCore
     states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64, "height": 64})
 

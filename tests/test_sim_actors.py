@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from actors.camera import Camera
-from actors.sim import NOISE_STREAM, Sim, episode_seed
+from sebvs_actors.camera import Camera
+from sebvs_actors.sim import NOISE_STREAM, Sim, episode_seed
 from sebvs.runtime import Message
 from sebvs.runtime.supervisor import run_topology
 

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from actors.sim import episode_seed
+from sebvs_actors.sim import episode_seed
 from sebvs.sim.randomise import SceneRandomiser
 from tests.test_sim_actors import make_sim
 

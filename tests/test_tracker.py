@@ -81,7 +81,7 @@ def test_an_episode_waits_for_its_last_action_behind_the_next_episodes_first_fra
 
     import numpy as np
 
-    from actors.tracker import ArmTracker
+    from sebvs_actors.tracker import ArmTracker
     out = tmp_path / "arm.jsonl"
     tracker = ArmTracker("tracker", ArmTracker.Params(path=str(out), control_hz=10.0),
                          connected=frozenset({"rgb", "action", "episode"}), node=_Node())
@@ -125,7 +125,7 @@ def test_an_episode_waits_for_its_last_action_behind_the_next_episodes_first_fra
 def test_without_an_action_input_the_next_frame_closes_an_episode():
     import asyncio
 
-    from actors.tracker import NavTracker
+    from sebvs_actors.tracker import NavTracker
     tracker = NavTracker("tracker", NavTracker.Params(control_hz=10.0),
                          connected=frozenset({"rgb", "episode"}), node=_Node())
     truth = {"image": [64, 64], "centroid": [32.0, 32.0], "bbox": [30, 30, 34, 34],

@@ -2,7 +2,7 @@
 and control values. Whatever comes in is decoded into valid values or refused with the
 documented error (WireError for the wire, ValueError for control), never another
 exception, and a refused control value leaves the running one as it was. 1,500 examples
-per property here; tools/studies/wire_properties_study.py runs 100,000."""
+per property here; tools/checks/wire_properties_study.py runs 100,000."""
 import asyncio
 import copy
 import math
@@ -12,13 +12,13 @@ import msgpack
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from actors.camera import Camera
-from actors.synthetic import PatternSource
+from sebvs_actors.camera import Camera
+from sebvs_actors.synthetic import PatternSource
 from sebvs.runtime.params import params_to_dict
 from sebvs.runtime.wire import (MAX_ARRAY_BYTES, MAX_HOPS, MAX_SEQ, SCHEMA_VERSION, WireError,
                                 array_spec, decode_header, encode_header)
 
-# tools/studies/wire_properties_study.py raises it (100,000) through the environment
+# tools/checks/wire_properties_study.py raises it (100,000) through the environment
 N_EXAMPLES = int(os.environ.get("SEBVS_PROPERTY_EXAMPLES", "1500"))
 EXAMPLES = settings(max_examples=N_EXAMPLES, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])

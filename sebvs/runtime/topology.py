@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.util
 import json
 import operator
 import os
@@ -247,6 +248,24 @@ def apply_override(doc: dict, text: str) -> None:
     table[parts[-1]] = value
 
 
+def import_actor_module(name: str):
+    """The module a `run = "module:Class"` names. ``actors.X`` is the historical spelling of
+    ``sebvs_actors.X``, the package the project's actors/ folder installs as: the one module
+    either way (actors/__init__.py makes the names one in a checkout), so no actor class is
+    loaded twice. A module sebvs_actors lacks is imported as written (a project's own
+    ``actors`` package)."""
+    head, dot, rest = name.partition(".")
+    if head == "actors":
+        canonical = "sebvs_actors" + dot + rest
+        try:
+            found = importlib.util.find_spec(canonical) is not None
+        except ImportError:     # sebvs_actors not installed (a bare checkout: as written)
+            found = False
+        if found or importlib.util.find_spec("actors") is None:
+            name = canonical
+    return importlib.import_module(name)
+
+
 def _import_actor(run: str, where: str) -> type:
     from .actor import Actor
     module_name, _, cls_name = run.partition(":") if isinstance(run, str) else ("", "", "")
@@ -256,7 +275,7 @@ def _import_actor(run: str, where: str) -> type:
         raise TopologyError(f"{where} key 'run': expected \"package.module:Class\", "
                             f"got {short_repr(run)}")
     try:
-        module = importlib.import_module(module_name)
+        module = import_actor_module(module_name)
     except ImportError as exc:
         raise TopologyError(f"{where} key 'run': cannot import {module_name!r}: "
                             f"{_first_line(exc)}") from None

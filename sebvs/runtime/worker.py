@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
-import importlib
 import json
 import logging
 import os
@@ -19,7 +18,7 @@ import sys
 import threading
 
 from .params import build_params
-from .topology import REALTIME_PRIORITY
+from .topology import REALTIME_PRIORITY, import_actor_module
 
 PR_SET_PDEATHSIG = 1
 
@@ -94,8 +93,7 @@ def realtime_refused() -> str | None:
 
 def load_class(path: str):
     module_name, _, cls_name = path.partition(":")
-    module = importlib.import_module(module_name)
-    return getattr(module, cls_name)
+    return getattr(import_actor_module(module_name), cls_name)   # as the topology loader
 
 
 def actor_factory(spec: dict):
