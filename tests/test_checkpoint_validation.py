@@ -109,6 +109,18 @@ HOSTILE = {
     "channels a string": (field("channels", "2"), r"json: channels: expected int"),
     "channel_order not a list": (field("channel_order", "on,off"),
                                  r"json: channel_order: expected a list"),
+    "emulator not a table": (field("emulator", 2), r"json: emulator: expected a table"),
+    "emulator version 3": (field("emulator", {"preset": "physical", "preset_version": 3}),
+                           r"json: emulator.preset_version: 3 is not one of 1, 2"),
+    "emulator version 2.0": (field("emulator", {"preset_version": 2.0}),
+                             r"json: emulator.preset_version: 2.0 is not one of 1, 2"),
+    "emulator version missing": (field("emulator", {"preset": "physical"}),
+                                 r"json: emulator.preset_version: missing"),
+    "emulator preset a number": (field("emulator", {"preset": 7, "preset_version": 1}),
+                                 r"json: emulator.preset: expected str, got int 7"),
+    "emulator key unknown": (field("emulator", {"preset_version": 1, "noise": "low"}),
+                             r"json: emulator.noise: unknown key \(known: preset, "
+                             r"preset_version\)"),
 }
 
 
@@ -272,3 +284,19 @@ def test_the_shipped_checkpoints_pass_the_schema_and_still_load():
         assert norm.size == fields["size"] == cfg["size"]
     model, cfg, _ = load_checkpoint(SHIPPED[0])
     assert model.size == cfg["size"]
+
+
+@pytest.mark.parametrize("record", [{"preset": "physical", "preset_version": 2},
+                                    {"preset": None, "preset_version": 1},
+                                    {"preset_version": 2}])
+def test_the_emulator_record_is_accepted_and_optional(ckpt, record):
+    """Training writes {"preset", "preset_version"} for modalities with events; the shipped
+    checkpoints have none (version 1, as an evaluation reads it)."""
+    from sebvs.policy.checkpoint_schema import check_emulator
+    pt, good = ckpt
+    assert "emulator" not in good
+    load_checkpoint(pt)
+    edited(pt, good, field("emulator", record))
+    _, cfg, _ = load_checkpoint(pt)
+    assert cfg["emulator"] == record
+    assert check_emulator(record, "x") == {"preset": None, **record}

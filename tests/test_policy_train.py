@@ -534,3 +534,67 @@ def test_a_non_finite_resume_state_is_neither_written_nor_continued(tmp_path):
     assert load_state(path, "k", said.append) is None
     assert said == ["  nav-event.resume.pt: optimizer/state/0/exp_avg_sq is not finite; "
                     "training from the start"]
+
+
+def with_emulator(root, out, versions: list[int | None], preset: str = "physical"):
+    """A copy of the dataset at ``root`` in ``out`` whose episodes name the emulator the
+    recorder resolved, episode i at ``versions[i]`` (None: a "resolved" without the key, as
+    recorded before issue 67), reindexed as a recording made so."""
+    import shutil
+
+    import h5py
+
+    from tests.policy_data import reindex
+    out = Path(out)
+    shutil.copytree(root, out)
+    for e, version in zip(load_index(out), versions):
+        resolved = {"shot_noise_rate_hz": 0.5, **({"preset_version": version}
+                                                   if version is not None else {})}
+        with h5py.File(out / e["file"], "r+") as f:
+            f.attrs["emulator"] = json.dumps({"preset": preset, "overrides": {},
+                                              "resolved": resolved})
+    return reindex(out)
+
+
+def test_a_checkpoint_names_the_emulator_its_events_were_recorded_with(gain_data, tmp_path):
+    """The emulator's preset and preset_version go from the episodes into the config of a
+    modality with events (not into the weights' record); absent, version 1; rgb alone has
+    none to name."""
+    from sebvs.policy.checkpoint import CONFIG_RECORD, load_checkpoint
+    kw = dict(epochs=1, batch=8, max_frames=16, norm=Normalisation(size=32), **QUIET)
+    v2 = with_emulator(gain_data, tmp_path / "v2", [2] * 6)
+    res = train(v2, tmp_path / "a", "nav", ["event", "rgb"], **kw)
+    assert res["event"]["emulator"] == {"preset": "physical", "preset_version": 2}
+    assert "emulator" not in res["rgb"]
+    model, cfg, _ = load_checkpoint(tmp_path / "a" / "nav-event.pt")
+    assert cfg["emulator"] == {"preset": "physical", "preset_version": 2}
+    record = torch.load(tmp_path / "a" / "nav-event.pt", weights_only=True)[CONFIG_RECORD]
+    assert "emulator" not in json.loads(bytes(record.tolist()))
+    old = with_emulator(gain_data, tmp_path / "v1", [None] * 6)
+    assert train(old, tmp_path / "b", "nav", ["rgb+event"], **kw)["rgb+event"]["emulator"] \
+        == {"preset": "physical", "preset_version": 1}
+    # the synthetic recording names no emulator at all: version 1, preset unknown
+    assert train(gain_data, tmp_path / "c", "nav", ["event"], **kw)["event"]["emulator"] \
+        == {"preset": None, "preset_version": 1}
+
+
+def test_a_dataset_that_mixes_emulator_versions_is_refused_in_one_line(gain_data, tmp_path):
+    from sebvs.policy.dataset import emulator_of
+    mixed = with_emulator(gain_data, tmp_path / "mixed", [1, 1, 2, None, 2, 1])
+    with pytest.raises(ValueError, match=r"^\S+mixed: episodes recorded with emulator "
+                                         r"preset_version 1 \(episode_0000.h5\) and 2 "
+                                         r"\(episode_0002.h5\): one noise model per dataset$"):
+        train(mixed, tmp_path / "out", "nav", ["rgb+event"], epochs=1, batch=8,
+              norm=Normalisation(size=32), **QUIET)
+    assert not (tmp_path / "out").exists()          # refused before anything is written
+    # an rgb training reads no events, and names no emulator: the mix does not matter to it
+    assert "emulator" not in train(mixed, tmp_path / "rgb", "nav", ["rgb"], epochs=1,
+                                   batch=8, max_frames=16, norm=Normalisation(size=32),
+                                   **QUIET)["rgb"]
+    odd = with_emulator(gain_data, tmp_path / "odd", [3] * 6)
+    with pytest.raises(ValueError, match=r"episode_0000.h5: emulator preset_version 3 is not "
+                                         r"one of 1, 2$"):
+        emulator_of(odd, load_index(odd))
+    assert emulator_of(with_emulator(gain_data, tmp_path / "two", [2] * 6, "noisy"),
+                       load_index(tmp_path / "two")) == {"preset": "noisy",
+                                                         "preset_version": 2}

@@ -308,3 +308,23 @@ def test_nav_cells_at_the_sensor_separate_nominal_from_hdr():
     for r in (nominal, hdr):
         assert 0 <= r["event_background_coverage"] <= 1
         assert 0 <= r["event_edge_coverage"] <= r["event_edge_coverage_raw"] <= 1
+
+
+def test_the_cells_measure_the_event_sensor_their_documented_figures_were_measured_on():
+    """docs/sensors.md's event figures (docs/figures/bench_sensors.json) were measured with
+    the emulator's preset version 1, before issue 67 made 2 the default: the validation
+    pins 1, and reproduces a committed cell (nav indoor nominal, seed 0) exactly."""
+    import inspect
+    import json
+    from pathlib import Path
+    for f in (validate.sensor_cell, validate.step_range):
+        assert inspect.signature(f).parameters["event_preset_version"].default == 1
+    assert validate._event_sensor("physical", 0, 1).params.preset_version == 1
+    committed = json.loads((Path(__file__).resolve().parents[1] / "docs" / "figures"
+                            / "bench_sensors.json").read_text())["cells"][0]
+    assert (committed["cell"], committed["variant"], committed["seed"]) == \
+        ("nominal", "indoor", 0)
+    r = validate.sensor_cell("nav", committed["config"], seed=0, episode_s=8.0)
+    for key in ("event_edge_coverage", "event_background_coverage",
+                "event_edge_coverage_ideal", "detector_hit_rate", "exposure_s_median"):
+        assert r[key] == committed[key], key

@@ -1,17 +1,17 @@
 """Checkpoints: ``<task>-<modality>.pt`` (a state_dict) beside ``<task>-<modality>.json`` (config).
 
-The weights are a plain state_dict saved with torch.save and read back with
-``torch.load(weights_only=True)``: no pickled code runs when a checkpoint is opened.
-Everything needed to rebuild the model and prepare its input (task, modality, size,
-channels, normalisation) is in the JSON config, which is validated before anything is
-allocated from it (checkpoint_schema.py).
+    save_checkpoint(model, {**model_config("nav", "event", norm), ...}, "ck")
+    model, cfg, norm = load_checkpoint("ck/nav-event.pt", expect={"task": "nav"})
 
-The state_dict also holds one entry that is not a weight, ``CONFIG_RECORD``: the
-architecture and input fields of the config it was saved with, as UTF-8 JSON in a uint8
-tensor. The input side, the modality and the normalisation change no weight's shape (the
-positional table is rebuilt from the size, not stored), so a config edited to 320 px
-beside weights trained at 160 px would otherwise load and run, silently, on inputs the
-model never saw. Checkpoints saved before the record existed load without that check.
+The weights are a plain state_dict, read back with ``torch.load(weights_only=True)``: no
+pickled code runs when a checkpoint is opened. What rebuilds the model and prepares its
+input (task, modality, size, channels, normalisation) is in the JSON config, validated
+before anything is allocated from it (checkpoint_schema.py). The state_dict also holds
+``CONFIG_RECORD``, the architecture and input fields of the config it was saved with:
+the size, the modality and the normalisation change no weight's shape, so a config edited
+away from its weights (320 px beside weights trained at 160) would otherwise load and run
+on inputs the model never saw. Checkpoints saved before the record load without that
+check. docs/policy.md, "Training".
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from sebvs.runtime.params import short_repr
 
 from .checkpoint_schema import (CONFIG_VERSION, MAX_CONFIG_BYTES, check_consistency,
                                 check_fields, validate_config)
-from .inputs import Normalisation, channel_names, channels
+from .inputs import Modality, Normalisation
 from .resume import RESUME_SUFFIX, first_non_finite
 
 # the state_dict key of the config record; no module attribute can be named so (a dot-free
@@ -36,7 +36,9 @@ class CheckpointError(ValueError):
     """A checkpoint or its config that cannot be used; the message names the file."""
 
 
-def checkpoint_paths(out_dir: str | Path, task: str, modality: str) -> tuple[Path, Path]:
+def checkpoint_paths(out_dir: str | Path, task: str, modality: Modality | str
+                     ) -> tuple[Path, Path]:
+    """``<out_dir>/<task>-<modality>.pt`` and the ``.json`` beside it."""
     stem = Path(out_dir) / f"{task}-{modality}"
     return stem.with_suffix(".pt"), stem.with_suffix(".json")
 
@@ -78,11 +80,14 @@ def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
     return pt
 
 
-def model_config(task: str, modality: str, norm: Normalisation, stem: str = "patch") -> dict:
-    """The part of a config that decides the architecture and its input."""
-    return {"task": task, "modality": modality, "size": norm.size, "stem": stem,
-            "channels": channels(modality, norm.event_bins),
-            "channel_order": channel_names(modality, norm.event_bins),
+def model_config(task: str, modality: Modality | str, norm: Normalisation,
+                 stem: str = "patch") -> dict:
+    """The part of a config that decides the architecture and its input (the modality by
+    its name, as the JSON holds it)."""
+    modality = Modality.parse(modality)
+    return {"task": task, "modality": modality.value, "size": norm.size, "stem": stem,
+            "channels": modality.channels(norm.event_bins),
+            "channel_order": modality.channel_names(norm.event_bins),
             "normalisation": norm.to_dict()}
 
 

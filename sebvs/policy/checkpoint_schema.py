@@ -1,27 +1,30 @@
 """What a checkpoint's JSON config must hold, checked before a model is built from it.
 
-A config decides how big a model `load_checkpoint` allocates and how the actor prepares
-its input, so nothing in it is trusted: each field is type- and range-checked with the
-topology parameters' scheme (``Annotated[T, Range(...)]``, sebvs/runtime/params.py), then
-the fields are checked against each other (channels and their order follow the modality
-and the event bins, the normalisation's size is the model's). Every refusal is a
-ValueError of one line naming the file and the key; checkpoint.py raises it as a
-CheckpointError.
+    fields, norm = validate_config(json.loads(text), "ck/nav-event.json")
+
+Nothing in a config is trusted: it decides how big a model `load_checkpoint` allocates and
+how the actor prepares its input. Each field is type- and range-checked with the topology
+parameters' scheme (``Annotated[T, Range(...)]``, sebvs/runtime/params.py), then the
+fields against each other (channels and their order follow the modality and the event
+bins, the normalisation's size is the model's). Every refusal is a ValueError of one line
+naming the file and the key; checkpoint.py raises it as a CheckpointError.
 
 Required: version, task, modality, size, channels, channel_order, normalisation.
-Optional: stem ("patch" where absent: configs written before the conv stem existed).
-Other keys (dataset, training, target_stats, event_frames, ...) are records, not read
-to build the model, and are left to their readers.
+Optional: stem ("patch" where absent: configs written before the conv stem existed), and
+the record emulator {"preset", "preset_version"} (the event emulator the training data
+was recorded with; where absent, preset_version 1: the shipped checkpoints'). Other keys
+(dataset, training, target_stats, event_frames, ...) are records, not read to build the
+model, and are left to their readers.
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Optional
 
-from sebvs.runtime.params import Range, coerce_param, short_repr
+from sebvs.dvs.params import PRESET_VERSIONS
+from sebvs.runtime.params import Range, clip, coerce_param, short_repr
 
-from .inputs import (MAX_SIZE, MODALITY_INPUTS, Normalisation, channel_names, channels,
-                     check_modality)
+from .inputs import MAX_SIZE, Modality, Normalisation
 
 CONFIG_VERSION = 1
 # ERP's patch side (model.ERP's default): no config records it, every checkpoint uses it
@@ -30,12 +33,12 @@ MAX_CONFIG_BYTES = 1 << 20     # shipped configs are under 40 kB (their episode 
 FUSION_STEMS = ("dual", "gated")     # a stem per modality: rgb+event inputs only
 
 
-def check_stem(stem: str, modality: str) -> None:
+def check_stem(stem: str, modality: Modality | str) -> None:
     """ValueError unless ``stem`` can embed ``modality``'s input: the dual and gated stems
     fuse rgb with events, so they take rgb+event alone (rgb+diff has as many planes, so
     the stem's own channel check would let it through)."""
-    check_modality(modality)
-    if stem in FUSION_STEMS and modality != "rgb+event":
+    modality = Modality.parse(modality)
+    if stem in FUSION_STEMS and modality is not Modality.RGB_EVENT:
         raise ValueError(f"the {stem} stem fuses rgb and event planes: it needs modality "
                          f"rgb+event, not {modality}")
 
@@ -45,7 +48,7 @@ def _fields() -> dict[str, Any]:
     from .model import STEMS, TASK_OUTPUTS
     return {"version": Literal[CONFIG_VERSION],
             "task": Literal[tuple(TASK_OUTPUTS)],
-            "modality": Literal[tuple(MODALITY_INPUTS)],
+            "modality": Literal[tuple(m.value for m in Modality)],
             "size": Annotated[int, Range(ge=PATCH, le=MAX_SIZE)],
             "stem": Literal[tuple(STEMS)],
             "channels": Annotated[int, Range(ge=1, le=3 + 2 * 64)],
@@ -54,6 +57,9 @@ def _fields() -> dict[str, Any]:
 
 
 OPTIONAL = {"stem": "patch"}
+# the emulator record (train.py writes it for modalities with events), key -> type; its
+# preset_version is what an evaluation runs the emulator's noise model at
+EMULATOR_FIELDS = {"preset": Optional[str], "preset_version": Literal[PRESET_VERSIONS]}
 
 
 def validate_config(cfg: Any, path: str | Path) -> tuple[dict, Normalisation]:
@@ -100,7 +106,34 @@ def check_fields(cfg: Any, path: str | Path) -> tuple[dict, Normalisation]:
                          f"size {PATCH}")
     norm = Normalisation.from_dict(fields["normalisation"], where=f"{where}: normalisation")
     fields["normalisation"] = norm.to_dict()
+    if "emulator" in cfg:
+        check_emulator(cfg["emulator"], f"{where}: emulator")
     return fields, norm
+
+
+def check_emulator(record: Any, where: str) -> dict:
+    """A config's emulator record, each key in its type: "preset" a name (or null where
+    the recording did not say), "preset_version" 1 or 2 (required); no other key.
+
+    Parameters:
+        record: the config's "emulator" value.
+        where: what it is, for errors (each names ``<where>.<key>``).
+
+    Returns:
+        The record, preset filled in as None where absent. ValueError, one line, naming
+        the key that is missing, unknown or of the wrong type.
+    """
+    if not isinstance(record, dict):
+        raise ValueError(f"{where}: expected a table, got {type(record).__name__} "
+                         f"{short_repr(record)}")
+    unknown = sorted((k for k in record if k not in EMULATOR_FIELDS), key=str)
+    if unknown:
+        raise ValueError(f"{where}.{clip(str(unknown[0]), 80)}: unknown key (known: "
+                         f"{', '.join(EMULATOR_FIELDS)})")
+    if "preset_version" not in record:
+        raise ValueError(f"{where}.preset_version: missing")
+    return {k: coerce_param(tp, record.get(k), where=f"{where}.{k}")
+            for k, tp in EMULATOR_FIELDS.items()}
 
 
 def check_consistency(fields: dict, norm: Normalisation, path: str | Path) -> None:
@@ -113,7 +146,7 @@ def check_consistency(fields: dict, norm: Normalisation, path: str | Path) -> No
         path: the config file, named in every error.
     """
     where = f"checkpoint config {path}"
-    size, modality = fields["size"], fields["modality"]
+    size, modality = fields["size"], Modality.parse(fields["modality"])
     if norm.size != size:
         raise ValueError(f"{where}: normalisation.size: {norm.size} is not the model's size "
                          f"{size}")
@@ -121,11 +154,11 @@ def check_consistency(fields: dict, norm: Normalisation, path: str | Path) -> No
         check_stem(fields["stem"], modality)
     except ValueError as exc:
         raise ValueError(f"{where}: stem: {exc}") from None
-    want = channels(modality, norm.event_bins)
+    want = modality.channels(norm.event_bins)
     if fields["channels"] != want:
         raise ValueError(f"{where}: channels: {fields['channels']} do not match modality "
                          f"{modality!r} with {norm.event_bins} event bin(s) ({want})")
-    order = channel_names(modality, norm.event_bins)
+    order = modality.channel_names(norm.event_bins)
     if fields["channel_order"] != order:
         raise ValueError(f"{where}: channel_order: {short_repr(fields['channel_order'])} is "
                          f"not modality {modality!r}'s with {norm.event_bins} event bin(s) "

@@ -1,5 +1,9 @@
 """`sebvs train` and `sebvs train-sweep`: registered by sebvs/cli.py. torch is imported only
-when a command runs."""
+when a command runs.
+
+    sebvs train --task nav --modality all --data datasets/nav --out checkpoints/nav
+    sebvs train-sweep nav_sweep.toml --out out/sweep_nav --workers 8 --threads 2
+"""
 from __future__ import annotations
 
 import argparse
@@ -106,6 +110,17 @@ def _cmd_train_sweep(args) -> int:
 
 
 def register(subparsers) -> None:
+    """Add `sebvs train` and `sebvs train-sweep` to sebvs's subcommands.
+
+    Parameters:
+        subparsers: what ``argparse.ArgumentParser.add_subparsers`` returned.
+    """
+    _register_train(subparsers)
+    _register_train_sweep(subparsers)
+
+
+def _register_train(subparsers) -> None:
+    """`sebvs train`: its parser, run by `_cmd_train`."""
     t = subparsers.add_parser(
         "train", help="behaviour-clone ERP policies from a recorded dataset",
         description="Train the ERP transformer on recorded episodes with the paper's settings "
@@ -166,6 +181,9 @@ def register(subparsers) -> None:
     t.add_argument("--no-progress", action="store_true", help="no tqdm bars")
     t.set_defaults(func=_cmd_train)
 
+
+def _register_train_sweep(subparsers) -> None:
+    """`sebvs train-sweep`: its parser, run by `_cmd_train_sweep`."""
     w = subparsers.add_parser(
         "train-sweep", help="run `sebvs train` over a grid of settings, seeds and modalities",
         formatter_class=argparse.RawDescriptionHelpFormatter,

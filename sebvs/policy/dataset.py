@@ -1,25 +1,18 @@
 """Behaviour-cloning samples read lazily from recorded episodes.
 
-The files are sebvs/data's (``open_episode``, ``DatasetIndex``): one HDF5 per episode with
-``rgb`` [T, H, W, 3] uint8, ``events/frame`` [T, 2K, H, W] uint8, ``action`` [T, 2] float32
-(nav) or ``pose`` [T, 6] float32 (arm), ``t_sim``, ``tick``; ``index.json`` in the dataset
-directory lists the episodes as {"file", "frames", "seed", ...}.
+    episodes = load_index("datasets/nav", "nav")
+    train_eps, val_eps = split_episodes(episodes, 0.2, seed=0)
+    frames = EpisodeFrames("datasets/nav", train_eps, "nav", "rgb+event", Normalisation())
+    x, y = frames[0]                 # float32 [5, 160, 160], the target float32 [2]
 
-Nothing is loaded whole: the dataset is an index of (episode, frame) pairs and each item
-reads one frame. Episode files are opened on first use in the process that reads (h5py
-handles must not cross a fork), so DataLoader workers each open their own, and at most
-``OPEN_EPISODES`` stay open: an open episode costs about 2 MB (HDF5's metadata and chunk
-caches) and a file descriptor (3,581 open arm episodes took 7 GB). Evicted episodes are
-released, not closed: h5py's close walks every open HDF5 object of the process, and took
-50 ms a call with 512 episodes open (minutes for 3,581). Shuffling every frame of a
-large dataset would then reopen a file per item (about 3 ms), so `EpisodeBlockSampler`
-shuffles episodes into blocks that fit the open set and the frames within each block.
-
-`EpisodeFrames.preload()` reads the streams a modality needs into memory instead, as the
-files store them (uint8 frames): one read per episode and stream rather than an HDF5 chunk
-decode per item, the same values, and DataLoader workers forked after it share the pages.
-It reads whole episodes, or only the rows the items use where ``max_frames`` thinned them.
-`train.py` preloads when the frames fit a share of the available memory.
+The files are sebvs/data's (``open_episode``, ``DatasetIndex``): an HDF5 per episode with
+``rgb``, ``events/frame``, ``action`` (nav) or ``pose`` (arm), ``t_sim`` and ``tick``, and
+``index.json`` listing them. The dataset is an index of (episode, frame) pairs and each item
+reads one frame. Episodes open in the reading process (DataLoader workers open their own)
+and at most ``OPEN_EPISODES`` stay open, released rather than closed; `EpisodeBlockSampler`
+shuffles episodes in blocks that fit the open set. `EpisodeFrames.preload()` reads the
+streams a modality needs into memory instead, as stored (train.py does when they fit).
+The costs behind each choice: docs/policy.md, "Dataset".
 """
 from __future__ import annotations
 
@@ -34,8 +27,9 @@ import numpy as np
 from sebvs.data.episode import Episode, open_episode
 from sebvs.dataset_files import verify_entries
 from sebvs.data.index import INDEX, DatasetIndex
+from sebvs.runtime.params import short_repr
 
-from .inputs import MODALITY_INPUTS, Normalisation, check_modality, model_input
+from .inputs import Modality, Normalisation, model_input
 
 TASKS = ("nav", "arm")
 OPEN_EPISODES = 512     # episode files a reader keeps open (least recently used released)
@@ -90,7 +84,7 @@ def _stored_bytes(h: "hashlib._Hash", stream) -> None:
         h.update(data)
 
 
-def content_digest(root: str | Path, episodes: list[dict], modality: str) -> str:
+def content_digest(root: str | Path, episodes: list[dict], modality: Modality | str) -> str:
     """sha256 over what a training of ``modality`` reads of the episodes, in their order:
     each episode's name, the image streams the modality takes (``rgb``, ``events/frame``)
     as stored, its targets, and its ticks counted from its first.
@@ -102,16 +96,15 @@ def content_digest(root: str | Path, episodes: list[dict], modality: str) -> str
     episode does not. Two equal digests mean equal training inputs; the converse needs the
     same compression (the chunks are hashed as stored, undecoded). It reads the stored
     bytes once (seconds for gigabytes; nothing is decoded but the small unchunked arrays)."""
-    check_modality(modality)
-    streams = MODALITY_INPUTS[modality]
+    modality = Modality.parse(modality)
     root, h = Path(root), hashlib.sha256()
     for e in episodes:
         h.update(f"{e['file']}\n".encode())
         ep = open_episode(root / e["file"])
         try:
-            if {"rgb", "rgb_prev"} & set(streams):
+            if modality.reads_rgb:
                 _stored_bytes(h, ep.rgb)
-            if "events" in streams:
+            if modality.has_events:
                 if ep.event_frame is None:
                     raise ValueError(f"{ep.path}: no events/frame, needed by modality "
                                      f"{modality!r}")
@@ -153,6 +146,50 @@ def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
             "window_s": float(window) if isinstance(window, (int, float)) else None,
             "sensor": [int(v) for v in sensor] if _is_size(sensor) else None,
             "output": [int(v) for v in planes_size] if _is_size(planes_size) else None}
+
+
+def emulator_of(root: str | Path, episodes: list[dict]) -> dict:
+    """The event emulator a dataset was recorded with, from every episode's ``emulator``
+    attribute (the recorder's: "preset", and "resolved", the preset's parameters).
+
+    Training keeps it in the checkpoint config, so that an evaluation runs the emulator's
+    noise model the policy was trained on (docs/dvs.md, "Noise and preset versions").
+
+    Parameters:
+        root: the dataset directory.
+        episodes: entries of its index (``file``).
+
+    Returns:
+        {"preset": the preset's name (None where the episodes do not say, or do not
+        agree), "preset_version": 1 or 2}; an episode whose attribute names no version
+        was recorded by version 1. ValueError, one line, for episodes that mix versions
+        or name one that is not 1 or 2.
+    """
+    from sebvs.dvs.params import PRESET_VERSIONS
+    root = Path(root)
+    presets, versions = set(), {}          # version -> the first episode recorded with it
+    for e in episodes:
+        ep = open_episode(root / e["file"])
+        try:
+            emulator = ep.attrs.get("emulator")
+        finally:
+            ep.release()
+        emulator = emulator if isinstance(emulator, dict) else {}
+        resolved = emulator.get("resolved")
+        version = resolved.get("preset_version", 1) if isinstance(resolved, dict) else 1
+        if type(version) is not int or version not in PRESET_VERSIONS:
+            raise ValueError(f"{root / e['file']}: emulator preset_version "
+                             f"{short_repr(version)} is not one of "
+                             f"{', '.join(map(str, PRESET_VERSIONS))}")
+        versions.setdefault(version, e["file"])
+        presets.add(emulator.get("preset") if isinstance(emulator.get("preset"), str)
+                    else None)
+    if len(versions) > 1:
+        (v1, f1), (v2, f2) = sorted(versions.items())[:2]
+        raise ValueError(f"{root}: episodes recorded with emulator preset_version {v1} "
+                         f"({f1}) and {v2} ({f2}): one noise model per dataset")
+    return {"preset": presets.pop() if len(presets) == 1 else None,
+            "preset_version": next(iter(versions), 1)}
 
 
 def _is_size(value) -> bool:
@@ -210,7 +247,7 @@ class CachedEpisode:
     ``rows`` (sorted frame numbers), when given, holds only those rows of the images (as
     `HeldRows`): a run capped by ``max_frames`` reads a few frames of each episode."""
 
-    def __init__(self, ep: Episode, streams: tuple[str, ...], rows: np.ndarray | None = None):
+    def __init__(self, ep: Episode, modality: Modality, rows: np.ndarray | None = None):
         self.path, self.task = ep.path, ep.task
 
         def read(stream):
@@ -218,8 +255,8 @@ class CachedEpisode:
                 return stream[:]
             # a row at a time: one chunk each (h5py's list selection took 59 ms for 12 rows)
             return HeldRows(rows, np.stack([stream[int(t)] for t in rows]))
-        self.rgb = read(ep.rgb) if {"rgb", "rgb_prev"} & set(streams) else None
-        self.event_frame = read(ep.event_frame) if "events" in streams else None
+        self.rgb = read(ep.rgb) if modality.reads_rgb else None
+        self.event_frame = read(ep.event_frame) if modality.has_events else None
         self.tick = ep.tick[:]
         self.target = np.asarray(ep.target[:], np.float32)
 
@@ -252,9 +289,9 @@ class EpisodeFrames:
             (a quick run still sees every episode).
     """
 
-    def __init__(self, root: str | Path, episodes: list[dict], task: str, modality: str,
-                 norm: Normalisation, max_frames: int = 0):
-        check_modality(modality)
+    def __init__(self, root: str | Path, episodes: list[dict], task: str,
+                 modality: Modality | str, norm: Normalisation, max_frames: int = 0):
+        modality = Modality.parse(modality)
         if task not in TASKS:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
         self.root, self.task, self.modality, self.norm = Path(root), task, modality, norm
@@ -280,9 +317,8 @@ class EpisodeFrames:
         if not len(used):
             return 0
         ep = self._episode(int(used[0]))
-        streams = set(MODALITY_INPUTS[self.modality])
-        per_frame = int(np.prod(ep.rgb.shape[1:])) if {"rgb", "rgb_prev"} & streams else 0
-        if "events" in streams:
+        per_frame = int(np.prod(ep.rgb.shape[1:])) if self.modality.reads_rgb else 0
+        if self.modality.has_events:
             per_frame += int(np.prod(ep.event_frame.shape[1:]))
         return per_frame * sum(self.frame_counts[ei] if rows is None else rows.size
                                for ei, rows in self._rows_read())
@@ -291,7 +327,7 @@ class EpisodeFrames:
         """(episode, rows) for every used episode: None when every frame is used (the whole
         streams are read), else the sorted frame numbers its items read, with the one before
         each where the modality takes the previous frame."""
-        prev = "rgb_prev" in MODALITY_INPUTS[self.modality]
+        prev = self.modality.reads_previous_frame
         for ei, ts in self._items_by_episode():
             if ts.size == self.frame_counts[ei]:
                 yield ei, None
@@ -311,12 +347,11 @@ class EpisodeFrames:
         """Read the used rows of every used episode's streams into memory (CachedEpisode);
         the bytes held. Items then come from memory; the files are released."""
         from tqdm import tqdm
-        streams = MODALITY_INPUTS[self.modality]
         used = list(self._rows_read())
         for ei, rows in tqdm(used, desc="frames to memory", unit="episode",
                              disable=not progress, leave=False):
             if ei not in self._cached:
-                self._cached[ei] = CachedEpisode(self._episode(ei), streams, rows)
+                self._cached[ei] = CachedEpisode(self._episode(ei), self.modality, rows)
                 handle = self._handles.pop(ei, None)
                 if handle is not None:
                     handle.release()
@@ -338,7 +373,7 @@ class EpisodeFrames:
             if ep.task != self.task:
                 ep.close()
                 raise ValueError(f"{ep.path}: episode of task {ep.task!r}, training {self.task!r}")
-            if "events" in MODALITY_INPUTS[self.modality]:
+            if self.modality.has_events:
                 planes = None if ep.event_frame is None else int(ep.event_frame.shape[1])
                 if planes != 2 * self.norm.event_bins:
                     ep.close()
@@ -356,7 +391,7 @@ class EpisodeFrames:
         ep = self._episode(ei)
         frames = {"rgb": ep.rgb, "events": ep.event_frame}
         streams = {s: previous_rgb(ep, t) if s == "rgb_prev" else frames[s][t]
-                   for s in MODALITY_INPUTS[self.modality]}
+                   for s in self.modality.streams}
         x = model_input(self.modality, self.norm, **streams)
         y = np.asarray(ep.target[t], dtype=np.float32)
         return x, y

@@ -1,25 +1,20 @@
 """How a loaded ERP runs at inference: the eager module as trained, or a frozen graph.
 
-    eager   model(x): the arithmetic of training's validation pass, so a lockstep
-            evaluation reproduces bit for bit. The default.
-    frozen  the model traced at its one input shape [1, C, S, S], frozen (weights become
-            constants, BatchNorm is folded into the convolution before it) and optimised
-            for inference (oneDNN convolutions on weights packed once, ReLU fused into
-            them, no Python between the operators). Outputs agree with eager to within
-            float32 rounding (about 1e-7 on the shipped checkpoints, checked at build
-            time against FROZEN_ATOL) but not bit for bit, so a lockstep run's actions
-            can differ in the last bits from an eager run's.
+    run, used, why = inference_graph(model, torch.zeros(1, C, S, S), "frozen")
+    y = run(x)            # used: "frozen", or "eager" with why it could not be frozen
 
-Why: a policy in a realtime loop runs once per control tick, after 0.1 s idle, and such a
-cold call costs up to twice a back-to-back one (docs/runtime.md, "Realtime tail"). The
-frozen graph does the same work in fewer, larger steps: 1.86 -> 1.37 ms cold,
-0.87 -> 0.62 ms warm, for the shipped nav rgb+event checkpoint at 160 px, one thread
-(tools/bench/bench_policy.py --shipped-only; docs/policy.md, "Benchmark").
+eager   model(x): the arithmetic of training's validation pass, so a lockstep evaluation
+        reproduces bit for bit. The default.
+frozen  the model traced at its one input shape [1, C, S, S], frozen (weights become
+        constants, BatchNorm folded into the convolution before it) and optimised for
+        inference: outputs within FROZEN_ATOL of eager (about 1e-7 on the shipped
+        checkpoints, checked when built), not bit for bit, and a cold call (a realtime
+        control tick after 0.1 s idle) 1.86 -> 1.37 ms for the shipped nav rgb+event at
+        160 px, one thread.
 
-TorchScript is deprecated upstream in favour of torch.compile and torch.export, which
-need a C++ toolchain at start-up and seconds per model. Where the torch at hand cannot
-freeze the model, or the frozen graph disagrees with eager, ``inference_graph`` says why
-and returns the eager module: a policy still runs, only slower.
+Where the torch at hand cannot freeze the model, or the frozen graph disagrees with eager,
+``inference_graph`` says why and returns the eager module. Why frozen, the measurements,
+and why TorchScript rather than torch.compile: docs/policy.md, "Inference graphs".
 """
 from __future__ import annotations
 

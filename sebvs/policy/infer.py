@@ -1,5 +1,10 @@
 """Inference side of the ERP: preloaded variants, and pairing of streams by tick.
 
+    policies = PolicySet(resolve_checkpoints({}, "checkpoints/nav", "nav", ["rgb", "event"]))
+    action, prep_ms, infer_ms = policies.act("event", events=frame)
+    sync = TickSync(("rgb", "events")); sync.put("events", tick, frame, t_sim)
+    tick = sync.ready("event")          # the oldest tick complete for the modality, or None
+
 ``PolicySet`` holds one model per modality (all loaded up front, so a modality swap costs
 no load time) and turns one observation into one action. ``TickSync`` keeps the latest few
 frames of each stream by tick and says which tick is complete for a modality;
@@ -18,7 +23,7 @@ import numpy as np
 
 from .checkpoint import checkpoint_paths, load_checkpoint
 from .graph import check_graph, inference_graph
-from .inputs import MODALITIES, MODALITY_INPUTS, Normalisation, check_modality, model_input
+from .inputs import PAPER_MODALITIES, Modality, Normalisation, model_input
 
 
 @dataclass
@@ -32,21 +37,25 @@ class LoadedPolicy:
 
 
 def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
-                        modalities: list[str]) -> dict[str, Path]:
+                        modalities: list[Modality | str]) -> dict[Modality, Path]:
     """Either an explicit table modality -> .pt path, or a directory + a list of modalities
-    (files ``<task>-<modality>.pt``). Returns modality -> path."""
+    (files ``<task>-<modality>.pt``; none: the paper's three). Returns modality -> path;
+    ValueError for an unknown modality, FileNotFoundError for a missing file."""
     if checkpoints and directory:
         raise ValueError("give either 'checkpoints' (modality -> path) or 'directory', not both")
     if checkpoints:
-        table = {m: Path(p) for m, p in checkpoints.items()}
+        named = [(m, Path(p)) for m, p in checkpoints.items()]
     elif directory:
-        table = {m: checkpoint_paths(directory, task, m)[0] for m in (modalities or MODALITIES)}
+        named = [(m, checkpoint_paths(directory, task, m)[0])
+                 for m in (modalities or PAPER_MODALITIES)]
     else:
         raise ValueError("no checkpoints: set 'checkpoints' (modality -> path) or 'directory'")
-    for m, p in table.items():
-        check_modality(m)
+    table = {}
+    for m, p in named:
+        m = Modality.parse(m)
         if not p.exists():
             raise FileNotFoundError(f"checkpoint for modality {m!r} not found: {p}")
+        table[m] = p
     return table
 
 
@@ -57,14 +66,15 @@ class PolicySet:
     "frozen". A model that cannot be frozen runs eager; ``fallbacks`` says why.
     """
 
-    def __init__(self, table: dict[str, Path], task: str | None = None,
+    def __init__(self, table: dict[Modality | str, Path], task: str | None = None,
                  graph: str = "eager"):
         import torch
         self._torch = torch
         check_graph(graph)
-        self.policies: dict[str, LoadedPolicy] = {}
-        self.fallbacks: dict[str, str] = {}
+        self.policies: dict[Modality, LoadedPolicy] = {}
+        self.fallbacks: dict[Modality, str] = {}
         for m, path in table.items():
+            m = Modality.parse(m)
             expect = {"modality": m, **({"task": task} if task else {})}
             model, cfg, norm = load_checkpoint(path, expect=expect)
             example = torch.zeros(1, model.in_channels, model.size, model.size)
@@ -81,9 +91,10 @@ class PolicySet:
             raise ValueError(f"checkpoints mix tasks {sorted(tasks)}: one policy, one task")
         self.task = tasks.pop()
         self.output = "action" if self.task == "nav" else "pose"
-        self.ablated: dict[str, tuple[list[int], np.ndarray]] = {}
+        self.ablated: dict[Modality, tuple[list[int], np.ndarray]] = {}
 
-    def ablate(self, modality: str, channels: list[int], levels: list[float]) -> None:
+    def ablate(self, modality: Modality | str, channels: list[int], levels: list[float]
+               ) -> None:
         """Hold input ``channels`` of ``modality`` at ``levels`` (model input units) on every
         call from now on: a closed-loop ablation, the stream those channels carry replaced
         by a constant level. ValueError naming what is wrong."""
@@ -104,10 +115,10 @@ class PolicySet:
             raise ValueError(f"ablate {modality}: levels {list(levels)} must be finite "
                              f"numbers")
         values = np.asarray(levels, dtype=np.float32)
-        self.ablated[modality] = (list(channels), values[:, None, None])
+        self.ablated[Modality.parse(modality)] = (list(channels), values[:, None, None])
 
     @property
-    def modalities(self) -> list[str]:
+    def modalities(self) -> list[Modality]:
         return list(self.policies)
 
     def warm_up(self) -> None:
@@ -118,7 +129,7 @@ class PolicySet:
                      events=np.zeros((planes, s, s), np.uint8),
                      rgb_prev=np.zeros((s, s, 3), np.uint8))
 
-    def act(self, modality: str, *, rgb: np.ndarray | None = None,
+    def act(self, modality: Modality | str, *, rgb: np.ndarray | None = None,
             events: np.ndarray | None = None,
             rgb_prev: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
         """Observation -> (output float32 [2] | [6], preprocess ms, inference ms)."""
@@ -178,15 +189,16 @@ class TickSync:
         while len(buf) > self.keep:
             del buf[min(buf)]
 
-    def ready(self, modality: str) -> int | None:
+    def ready(self, modality: Modality | str) -> int | None:
         """Smallest tick after the last used for which every stream of ``modality`` has a frame."""
-        needed = [self.frames[s] for s in MODALITY_INPUTS[modality]]
+        needed = [self.frames[s] for s in Modality.parse(modality).streams]
         common = set(needed[0]).intersection(*needed[1:])
         return min(common) if common else None
 
-    def take(self, modality: str, tick: int) -> dict[str, tuple[np.ndarray, float | None]]:
+    def take(self, modality: Modality | str, tick: int
+             ) -> dict[str, tuple[np.ndarray, float | None]]:
         """The frames of ``tick`` for ``modality``; everything up to ``tick`` is then dropped."""
-        got = {s: self.frames[s][tick] for s in MODALITY_INPUTS[modality]}
+        got = {s: self.frames[s][tick] for s in Modality.parse(modality).streams}
         self.last_tick = tick
         for buf in self.frames.values():
             for t in [t for t in buf if t <= tick]:

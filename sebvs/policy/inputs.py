@@ -1,31 +1,21 @@
 """The one place that turns raw observations into model input; training and the actor share it.
 
-    rgb     uint8 [H, W, 3]  -> float32 [3, S, S] in [0, 1]            (x / 255)
-    events  uint8 [2K, H, W] -> float32 [2K, S, S] in [0, 1]           (min(n, clip) / clip)
-            K = event_bins time bins per polarity over the accumulator's window: K = 1 is
-            the paper's counts (channel 0 ON, 1 OFF); K > 1 the accumulator's "histogram"
-            (ON bins oldest first, then OFF bins)
-    rgb_prev uint8 [H, W, 3], the RGB frame of the previous control tick in the same
-            episode (the control modality "rgb+diff" only) -> float32 [2, S, S] in [0, 1]:
-            the lin-log luma change since it, increase then decrease, in units of the
-            emulator's paper thresholds, clipped at event_clip and scaled as event counts
-            (`diff_input`)
-    model input for a modality = the per-modality tensors concatenated, rgb first:
-            rgb -> 3 ch, event -> 2K ch, rgb+event -> 3 + 2K ch, rgb+diff -> 3 + 2 ch
+    m = Modality.parse("rgb+event")            # the modality's name, parsed once
+    norm = Normalisation(size=160)              # as the checkpoint config records it
+    x = model_input(m, norm, rgb=rgb, events=events)    # float32 [m.channels(), 160, 160]
 
-Resizing: when a recorded frame is not S x S it is resized with cv2.INTER_AREA (an area
-average: no aliasing on the way down, and for event counts it keeps the mean density).
-Event counts are clipped *before* resizing so that one hot pixel cannot dominate a patch.
-RGB and event frames may have different sizes (the emulator downsamples); each is
-resized to S on its own.
-
-The settings (``Normalisation``) are stored in each checkpoint's config and read back by
-the actor, so a policy always sees inputs prepared the way it was trained.
+rgb uint8 [H, W, 3] -> x / 255; events uint8 [2K, H, W] (K time bins per polarity, K = 1
+the paper's ON/OFF counts) -> min(n, event_clip) / event_clip; rgb_prev, the previous
+control tick's RGB frame (the control rgb+diff) -> its lin-log luma change, scaled as
+event counts (`diff_input`). Each stream is area-resized to S x S on its own, events
+clipped first. The streams are concatenated rgb first: rgb 3, event 2K, rgb+event 3 + 2K,
+rgb+diff 3 + 2 channels. The shapes, the resizing and why: docs/policy.md, "Inputs".
 """
 from __future__ import annotations
 
 import functools
 from dataclasses import asdict, dataclass
+from enum import StrEnum
 from typing import Annotated, Literal
 
 import cv2
@@ -35,15 +25,109 @@ from sebvs.dvs.emulator import linlog
 from sebvs.dvs.params import PRESETS
 from sebvs.runtime.params import Range, clip, coerce_param, param_fields, short_repr
 
-MODALITIES = ("rgb", "event", "rgb+event")
-# controls: not the paper's modalities, but inputs that test a claim about them. rgb+diff
-# asks whether events give a policy more than a frame camera's own change between two
-# frames would (research/ideal8/events_vs_frame_difference.md). Trained and
-# evaluated when named; never part of "all" or of the default rows
-CONTROL_MODALITIES = ("rgb+diff",)
-# which observation streams a modality reads, in channel order
-MODALITY_INPUTS = {"rgb": ("rgb",), "event": ("events",), "rgb+event": ("rgb", "events"),
-                   "rgb+diff": ("rgb", "rgb_prev")}
+
+class Modality(StrEnum):
+    """A policy's input modality: the observation streams its model reads, in channel order.
+
+    A str whose value is its name, so that it is the name wherever a name goes: JSON
+    configs and results, ``<task>-<modality>.pt``, CLI choices, and the dict keys, set
+    members and comparisons of code that still holds the bare string (``Modality.RGB ==
+    "rgb"``, equal hashes, ``str``, ``format`` and ``repr`` as the name's).
+
+        m = Modality.parse("rgb+event")       # ValueError, one line, for another name
+        m.streams, m.channels(event_bins=4)    # ("rgb", "events"), 11
+        m.is_control, m.has_events            # False, True
+    """
+    RGB = "rgb", ("rgb",), False
+    EVENT = "event", ("events",), False
+    RGB_EVENT = "rgb+event", ("rgb", "events"), False
+    # a control: not one of the paper's modalities, but an input that tests a claim about
+    # them. rgb+diff asks whether events give a policy more than a frame camera's own
+    # change between two frames would (research/ideal8/events_vs_frame_difference.md).
+    # Trained and evaluated when named; never part of "all" or of the default rows
+    RGB_DIFF = "rgb+diff", ("rgb", "rgb_prev"), True
+
+    def __new__(cls, name: str, streams: tuple[str, ...], is_control: bool):
+        member = str.__new__(cls, name)
+        member._value_ = name
+        member.streams = streams          # observation streams read, in channel order
+        member.is_control = is_control    # a control, not one of the paper's three
+        return member
+
+    @classmethod
+    def parse(cls, value) -> "Modality":
+        """The modality a name (or a Modality) names.
+
+        Parameters:
+            value: "rgb", "event", "rgb+event" or "rgb+diff", or a Modality.
+
+        Returns:
+            The Modality. ValueError of one line for any other value: ``unknown modality
+            'x' (one of rgb, event, rgb+event, rgb+diff)``.
+        """
+        if isinstance(value, cls):
+            return value
+        return cls(value)
+
+    @classmethod
+    def _missing_(cls, value):
+        # what Modality(name) raises for an unknown name: parse's one line, not Enum's
+        raise ValueError(f"unknown modality {short_repr(value)} (one of "
+                         f"{', '.join(m.value for m in cls)})")
+
+    def __repr__(self) -> str:
+        # the name's repr: messages that say {modality!r} read the same for a Modality
+        # as for the string it replaced
+        return repr(self.value)
+
+    @property
+    def has_events(self) -> bool:
+        """Whether the model reads event frames (and so the emulator's output)."""
+        return "events" in self.streams
+
+    @property
+    def reads_rgb(self) -> bool:
+        """Whether the model reads RGB frames (its own tick's, or the previous one's)."""
+        return "rgb" in self.streams or "rgb_prev" in self.streams
+
+    @property
+    def reads_previous_frame(self) -> bool:
+        """Whether the model reads the previous control tick's RGB frame (rgb+diff)."""
+        return "rgb_prev" in self.streams
+
+    def channels(self, event_bins: int = 1) -> int:
+        """Input channels of the model: rgb 3, event 2K, rgb+event 3 + 2K, rgb+diff 5.
+
+        Parameters:
+            event_bins: K, the event frames' time bins per polarity (1: ON, OFF counts).
+        """
+        return sum(_stream_channels(s, event_bins) for s in self.streams)
+
+    def channel_names(self, event_bins: int = 1) -> list[str]:
+        """The model's input channels in order: r, g, b, then on, off (counts) or
+        on_t0 .. on_t{K-1}, off_t0 .. off_t{K-1} (time bins, oldest first), or up, down
+        (the frame difference of rgb+diff).
+
+        Parameters:
+            event_bins: K, as for `channels`.
+        """
+        events = (["on", "off"] if event_bins == 1 else
+                  [f"{p}_t{k}" for p in ("on", "off") for k in range(event_bins)])
+        names = {"rgb": ["r", "g", "b"], "events": events, "rgb_prev": ["up", "down"]}
+        return [c for s in self.streams for c in names[s]]
+
+
+def _stream_channels(stream: str, event_bins: int) -> int:
+    """Model input channels one observation stream becomes (rgb_prev: the frame difference)."""
+    return {"rgb": 3, "events": 2 * event_bins, "rgb_prev": 2}[stream]
+
+
+# The names as plain strings, for code that holds names (sebvs/eval, sebvs/demo.py, the
+# actors, research/): the paper's three, the controls, and each name's streams
+PAPER_MODALITIES = tuple(m for m in Modality if not m.is_control)
+MODALITIES = tuple(m.value for m in PAPER_MODALITIES)
+CONTROL_MODALITIES = tuple(m.value for m in Modality if m.is_control)
+MODALITY_INPUTS = {m.value: m.streams for m in Modality}
 
 
 # input sides by name: the CPU default (100 tokens) and the paper's (1600, for GPUs)
@@ -71,33 +155,19 @@ def parse_size(value: str | int) -> int:
     return size
 
 
-def channels(modality: str, event_bins: int = 1) -> int:
-    """Input channels of a modality's model: rgb 3, event 2K, rgb+event 3 + 2K,
-    rgb+diff 5."""
-    check_modality(modality)
-    return sum(_stream_channels(s, event_bins) for s in MODALITY_INPUTS[modality])
+def channels(modality: Modality | str, event_bins: int = 1) -> int:
+    """`Modality.channels` of a modality or its name (ValueError for an unknown name)."""
+    return Modality.parse(modality).channels(event_bins)
 
 
-def _stream_channels(stream: str, event_bins: int) -> int:
-    """Model input channels one observation stream becomes (rgb_prev: the frame difference)."""
-    return {"rgb": 3, "events": 2 * event_bins, "rgb_prev": 2}[stream]
+def channel_names(modality: Modality | str, event_bins: int = 1) -> list[str]:
+    """`Modality.channel_names` of a modality or its name (ValueError for an unknown name)."""
+    return Modality.parse(modality).channel_names(event_bins)
 
 
-def channel_names(modality: str, event_bins: int = 1) -> list[str]:
-    """The model's input channels in order: r, g, b, then on, off (counts) or
-    on_t0 .. on_t{K-1}, off_t0 .. off_t{K-1} (time bins, oldest first), or up, down (the
-    frame difference of rgb+diff)."""
-    check_modality(modality)
-    events = (["on", "off"] if event_bins == 1 else
-              [f"{p}_t{k}" for p in ("on", "off") for k in range(event_bins)])
-    names = {"rgb": ["r", "g", "b"], "events": events, "rgb_prev": ["up", "down"]}
-    return [c for s in MODALITY_INPUTS[modality] for c in names[s]]
-
-
-def check_modality(modality: str) -> None:
-    if modality not in MODALITY_INPUTS:
-        raise ValueError(f"unknown modality {modality!r} (one of "
-                         f"{', '.join(MODALITIES + CONTROL_MODALITIES)})")
+def check_modality(modality: Modality | str) -> None:
+    """ValueError, one line, unless ``modality`` names a modality (`Modality.parse`)."""
+    Modality.parse(modality)
 
 
 @dataclass(frozen=True)
@@ -246,9 +316,10 @@ def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation,
     return out
 
 
-def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = None,
-                events: np.ndarray | None = None, rgb_prev: np.ndarray | None = None,
-                out: np.ndarray | None = None) -> np.ndarray:
+def model_input(modality: Modality | str, norm: Normalisation, *,
+                rgb: np.ndarray | None = None, events: np.ndarray | None = None,
+                rgb_prev: np.ndarray | None = None, out: np.ndarray | None = None
+                ) -> np.ndarray:
     """The observation a modality needs -> float32 [C, S, S] (rgb channels first).
 
     Each stream is written into its channels of one array: ``out`` when given (the policy
@@ -256,10 +327,10 @@ def model_input(modality: str, norm: Normalisation, *, rgb: np.ndarray | None = 
     arrays: with two such arrays alive, each call paid ~0.2-0.4 ms in fresh pages at 160 px
     (rgb+event: 404 us against 19 + 17 us for its two parts alone).
     """
-    check_modality(modality)
-    out = _output(out, channels(modality, norm.event_bins), norm.size)
+    modality = Modality.parse(modality)
+    out = _output(out, modality.channels(norm.event_bins), norm.size)
     first = 0
-    for stream in MODALITY_INPUTS[modality]:
+    for stream in modality.streams:
         block = out[first:first + _stream_channels(stream, norm.event_bins)]
         first += len(block)
         if stream == "rgb":

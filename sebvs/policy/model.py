@@ -1,18 +1,20 @@
 """The ERP transformer (paper section 3.4): early-fused RGB + event frames -> an action.
 
-    x [B, C, S, S]  (C = 3 rgb | 2 event | 5 rgb+event, already normalised by inputs.py)
-      -> PatchEmbedding     tokens [B, N, 64]    N = (S/16)^2: 100 at 160 px, 1600 at 640 px
-         (or ConvStem, same tokens, when built with stem="conv")
-      -> prepend class token, add fixed 2-D sinusoidal positions       [B, 1+N, 64]
-      -> one pre-norm encoder layer (4-head self-attention, 256-unit MLP, dropout 0.1)
-      -> task head on the class token: nav [v, w] in [-1, 1], arm 6-DoF pose
+    model = ERP("nav", in_channels=5, size=160)     # rgb+event; stem="patch", the paper's
+    y = model(x)          # x float32 [B, 5, 160, 160] from inputs.py -> [B, 2]: [v, w]
 
-The three variants differ only in the patch embedding's input channels, so a variant is
-chosen by ``in_channels`` alone. Every other size is a constructor argument with the
-paper's value as default; our departures are the stems, off by default: ``stem="conv"``
-(ConvStem) and, for rgb+event only, ``stem="gated"`` (GatedFusionStem: a stem per
-modality and a learned gate in place of early fusion) and its control ``stem="dual"``
-(DualStem: the two stems, no gate).
+x [B, C, S, S] (C = 3 rgb | 2 event | 5 rgb+event) -> PatchEmbedding, tokens [B, N, 64]
+with N = (S/16)^2 (100 at 160 px, 1600 at 640 px; ConvStem gives the same tokens) ->
+class token prepended, fixed 2-D sinusoidal positions added [B, 1+N, 64] -> one pre-norm
+encoder layer (4-head self-attention, 256-unit MLP, dropout 0.1) -> the task head on the
+class token: nav [v, w] in [-1, 1], arm a 6-DoF pose.
+
+The variants differ only in the patch embedding's input channels (``in_channels``); every
+other size is a constructor argument with the paper's value as default. Our departures,
+off by default, are the stems: ``stem="conv"`` (ConvStem) and, for rgb+event only,
+``stem="gated"`` (GatedFusionStem: a stem per modality and a learned gate in place of
+early fusion) and its control ``stem="dual"`` (DualStem: the two stems, no gate).
+docs/policy.md, "Model" and "Training".
 """
 from __future__ import annotations
 

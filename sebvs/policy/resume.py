@@ -1,17 +1,18 @@
 """A training's state at the end of each epoch, so that a stopped training goes on from
 there and ends with the same weights, bit for bit, as one that never stopped.
 
-The state file ``<out>/<task>-<modality>.resume.pt`` holds the model, the optimizer, the
-learning-rate schedule, the shuffle's and torch's random generators, the loss rows and the
-early-stopping bookkeeping (the best weights so far and the epochs since). It is written
-atomically after every epoch, read only when it was made by the same settings on the same
-data (its fingerprint), and removed once the checkpoint is written. It holds tensors and
-plain values only, read with ``torch.load(..., weights_only=True)``.
+    path = resume_path("ck", "nav", "event")            # ck/nav-event.resume.pt
+    state = load_state(path, fingerprint(settings, "event", digest))   # or None
+    save_state(path, {"fingerprint": ..., "epoch": 3, "model": ..., ...})
 
-"The same data" is the content of what the training reads (`dataset.content_digest`), not
-the files: a dataset recorded again from the same commands, as a new checkout must (the
-recordings are not kept), continues the state that a stopped session left (version 2; a
-version-1 file named the files' hash, and is not continued).
+The state holds the model, the optimizer, the learning-rate schedule, the shuffle's and
+torch's random generators, the loss rows and the early stopping's bookkeeping. It is
+written atomically after every epoch, continued only by the same settings on the same
+data (its fingerprint: the content of what the training reads, `dataset.content_digest`,
+so a recording made again from the same commands continues it), removed once the
+checkpoint is written, and holds tensors and plain values only (``torch.load(...,
+weights_only=True)``). Version 2; a version-1 file named the files' hash, and is not
+continued. docs/policy.md, "A stopped training goes on".
 """
 from __future__ import annotations
 
@@ -30,16 +31,18 @@ NOT_IN_FINGERPRINT = ("num_workers", "cache")
 ADDED_SETTINGS = {"zero_subnormals": False}
 
 
-def resume_path(out: str | Path, task: str, modality: str) -> Path:
+def resume_path(out: str | Path, task: str, modality) -> Path:
+    """``<out>/<task>-<modality>.resume.pt`` (``modality`` a Modality or its name)."""
     return Path(out) / f"{task}-{modality}{RESUME_SUFFIX}"
 
 
-def fingerprint(settings, modality: str, content: str) -> str:
+def fingerprint(settings, modality, content: str) -> str:
     """What must match for a saved state to continue this training: the settings that
-    decide the weights, the modality and the content digest of the data it reads."""
+    decide the weights, the modality (a Modality or its name: the name either way) and
+    the content digest of the data it reads."""
     fields = {k: v for k, v in asdict(settings).items() if k not in NOT_IN_FINGERPRINT
               and not (k in ADDED_SETTINGS and v == ADDED_SETTINGS[k])}
-    return json.dumps({"version": RESUME_VERSION, "modality": modality, "data": content,
+    return json.dumps({"version": RESUME_VERSION, "modality": str(modality), "data": content,
                        "settings": fields}, sort_keys=True, default=str)
 
 

@@ -1,15 +1,15 @@
 """Float32 subnormals in a training's weights and optimizer state.
 
-Weights that get no gradient from the data (dead units) decay under weight decay until
-they are subnormal: non-zero, below float32's smallest normal (1.18e-38). Added to a sum of
-normal numbers they change nothing, but a CPU multiplies them through slow microcode: a
-nav ERP training step with 17 % of its weights subnormal took 5.8x as long as with them
-flushed (tools/bench/bench_denormal.py; research/sensors/log.md, 2026-11-27).
+    zeroer = ZeroSubnormals(model, optimizer)
+    optimizer.step(); zeroer()          # after every step; zeroer.total counts the zeroed
+    count_subnormals(tensor)            # how many of a tensor's floats are subnormal
 
-Zeroing them after every optimizer step (`sebvs train --zero-subnormals`) is the software
-form of the CPU's flush-to-zero. It does the same on every machine and at any thread
-count, which the CPU's mode does not: that is a per-thread register (x86's MXCSR;
-`torch.set_flush_denormal` sets the calling thread's), and it also flushes activations.
+Weights that get no gradient from the data decay under weight decay until they are
+subnormal (non-zero, below float32's smallest normal, 1.18e-38), which a CPU multiplies
+through slow microcode. Zeroing them after every step (`sebvs train --zero-subnormals`)
+is the software form of the CPU's flush-to-zero, the same on every machine and at any
+thread count. The measurements, and why not the CPU's own mode: docs/policy.md,
+"Subnormal weights".
 """
 from __future__ import annotations
 

@@ -1,23 +1,18 @@
 """Training sweeps: `sebvs train` over a grid (sweep_grid.py), one checkpoint directory per
 point, on one process, local worker processes or Ray tasks (sebvs/scale/pool.py's pool).
 
-Each point calls `train` exactly as `sebvs train` does, with the point's settings, into
-``<out>/<point name>/`` (checkpoint, config, loss CSV and plot, and ``train.log``: the
-epoch lines, and the traceback of a failure). After each point ends, ``<out>/sweep.json``
-and ``<out>/sweep.md`` are rewritten (sweep_table.py), so they show the sweep so far.
+    summary = run_sweep(load_grid("nav_sweep.toml"), "out/sweep_nav", workers=8, threads=2)
+    points, records = plan_sweep(grid, "out/sweep_nav")   # what is trained already
 
-Resume: a point whose checkpoint and config both exist is skipped (its numbers are read
-back from the config), after checking that the config was trained with the point's
-settings: a grid edited under an existing output must not mix old points into new ones.
-A failed or interrupted point has no config, so the next run trains it again.
-
-Placement: one worker (the default) trains the points one after another in this process.
-`workers` > 1: spawned worker processes, one point each, `threads` torch threads each,
-pinned to disjoint CPU sets when the machine has workers x threads CPUs to give. Ray: one
-task per point asking for `threads` CPUs, or `gpus_per_task` GPUs with device cuda (Ray
-then gives the task its GPUs through CUDA_VISIBLE_DEVICES, so "cuda" is the task's own).
-Points train with the same seeds whatever the placement: on the CPU with the same threads
-they give the same weights as one `sebvs train` each.
+Each point calls `train` exactly as `sebvs train` does, into ``<out>/<point name>/`` (its
+checkpoint, config, loss CSV and plot, and ``train.log``: the epoch lines, and the
+traceback of a failure); ``<out>/sweep.json`` and ``sweep.md`` are rewritten as each point
+ends (sweep_table.py). A point whose checkpoint and config exist is skipped, after
+checking that it was trained with the point's settings; a failed or interrupted point has
+no config and is trained again. Placement (one process; workers pinned to disjoint CPU
+sets where the machine has them; a Ray task per point asking for CPUs or GPUs) changes no
+weight: on the CPU with the same threads a point gives one `sebvs train`'s weights.
+docs/scale.md, "Sweeps".
 """
 from __future__ import annotations
 
@@ -223,50 +218,88 @@ def run_sweep(grid: Grid, out: str | Path, *, workers: int = 1, ray: str | None 
     tasks by the CPUs and GPUs they ask for). `threads`: torch threads per point (default:
     locally this machine's CPUs shared among the workers, on Ray 1).
     """
-    from sebvs.scale import Shard, disjoint_cpu_sets, fan_out
+    gpus = _check_sweep(grid, workers, threads, device, ray, gpus_per_task)
+    out = Path(out).resolve()
+    points, records = plan_sweep(grid, out)
+    todo = [p for p in points if records[p.name]["status"] == "pending"]
+    place = _placement(len(todo), workers, threads, ray, gpus)
 
+    from .train import paper_settings
+    summary = {"grid": grid.path, "task": grid.task, "data": grid.data,
+               "loss": paper_settings(grid.task).loss, "train": grid.base, "axes": grid.axes,
+               "run": {"workers": workers, "ray": ray, "threads": place.threads,
+                       "device": device, "gpus_per_task": gpus or None,
+                       "cpu_sets": [list(c) for c in place.pinned] if place.pinned else None},
+               "points": [records[p.name] for p in points]}
+    echo(f"sebvs train-sweep: {len(points)} point(s), {len(points) - len(todo)} trained before "
+         f"(skipped), " + (f"{len(todo)} to train on {place.where}" if todo
+                           else "nothing to train"))
+    out.mkdir(parents=True, exist_ok=True)
+    write_summary(out, summary)
+    if todo:
+        _train_points(grid, out, todo, records, summary, place, device, progress, echo)
+    return summary
+
+
+def _check_sweep(grid: Grid, workers: int, threads: int | None, device: str,
+                 ray: str | None, gpus_per_task: float | None) -> float:
+    """SweepError, one line, for options that cannot run or a grid whose dataset is
+    missing or wrong (one error, not a failure per point); else the GPUs per Ray task."""
     from .dataset import load_index
     if workers < 1:
         raise SweepError(f"--workers must be at least 1, got {workers}")
     if threads is not None and threads < 1:
         raise SweepError(f"--threads must be at least 1, got {threads}")
     gpus = _gpus_per_task(device, ray, gpus_per_task)
-    try:                # a missing or wrong dataset: one error, not a failure per point
+    try:
         load_index(grid.data, grid.task)
     except (FileNotFoundError, ValueError) as exc:
         raise SweepError(f"grid {grid.path}: data: {exc}") from None
-    out = Path(out).resolve()
-    points, records = plan_sweep(grid, out)
-    todo = [p for p in points if records[p.name]["status"] == "pending"]
-    running = min(workers, len(todo)) if ray is None else workers
+    return gpus
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a sweep's points train (`_placement`)."""
+    workers: int                  # as asked (run_sweep's)
+    ray: str | None               # as asked (run_sweep's)
+    gpus: float                   # GPUs per Ray task (0: none asked)
+    running: int                  # points at once (Ray: tasks in flight, as asked)
+    threads: int                  # torch threads per point
+    parallel: bool                # more than one point at once (or on Ray)
+    pinned: list | None           # a CPU set per local worker, where the machine has them
+    where: str                    # the above in words, for the first line
+
+
+def _placement(todo: int, workers: int, threads: int | None, ray: str | None,
+               gpus: float) -> Placement:
+    """The placement of ``todo`` points: `run_sweep`'s options resolved (threads by
+    default this machine's CPUs shared among the local workers, 1 on Ray)."""
+    from sebvs.scale import disjoint_cpu_sets
+    running = min(workers, todo) if ray is None else workers
     if threads is None:
         threads = 1 if ray is not None else \
             max(1, len(os.sched_getaffinity(0)) // max(1, running))
     parallel = ray is not None or running > 1
     pinned = disjoint_cpu_sets(running, threads) if ray is None and running > 1 else None
-
-    from .train import paper_settings
-    summary = {"grid": grid.path, "task": grid.task, "data": grid.data,
-               "loss": paper_settings(grid.task).loss, "train": grid.base, "axes": grid.axes,
-               "run": {"workers": workers, "ray": ray, "threads": threads, "device": device,
-                       "gpus_per_task": gpus or None,
-                       "cpu_sets": [list(c) for c in pinned] if pinned else None},
-               "points": [records[p.name] for p in points]}
     where = (f"Ray ({ray or 'local'}), {threads} CPU(s)" + (f" and {gpus:g} GPU(s)" if gpus
                                                              else "") + " per task"
              if ray is not None else
              f"{running} local worker(s), {threads} torch thread(s) each" +
              (", CPUs " + " | ".join(",".join(map(str, c)) for c in pinned) if pinned else
               ", not pinned" if running > 1 else ""))
-    echo(f"sebvs train-sweep: {len(points)} point(s), {len(points) - len(todo)} trained before "
-         f"(skipped), " + (f"{len(todo)} to train on {where}" if todo else "nothing to train"))
-    out.mkdir(parents=True, exist_ok=True)
-    write_summary(out, summary)
-    if not todo:
-        return summary
+    return Placement(workers, ray, gpus, running, threads, parallel, pinned, where)
 
+
+def _train_points(grid: Grid, out: Path, todo: list[Point], records: dict, summary: dict,
+                  place: Placement, device: str, progress: bool,
+                  echo: Callable[[str], None]) -> None:
+    """Train the ``todo`` points as ``place`` says, each point's record updated and the
+    summary rewritten as it ends (and once more at the end, however it ends)."""
+    from sebvs.scale import Shard, fan_out
     jobs = {p.name: PointJob(p.name, grid.task, grid.data, str(out / p.name), p.settings,
-                             threads, device, progress and not parallel) for p in todo}
+                             place.threads, device, progress and not place.parallel)
+            for p in todo}
     finished = []
 
     def collect(name: str, result: dict | None) -> None:
@@ -286,22 +319,22 @@ def run_sweep(grid: Grid, out: str | Path, *, workers: int = 1, ray: str | None 
         collect(shard.job, result)
         return []       # nothing to retry: a failed point is recorded, the next run retries it
 
+    ray, workers, gpus = place.ray, place.workers, place.gpus
     try:
-        if not parallel:
+        if not place.parallel:
             for p in todo:
                 collect(p.name, run_point(jobs[p.name]))
                 if records[p.name]["status"] == "interrupted":
                     raise KeyboardInterrupt
         else:
-            resources = {"num_cpus": threads, **({"num_gpus": gpus} if gpus else {})}
+            resources = {"num_cpus": place.threads, **({"num_gpus": gpus} if gpus else {})}
             fan_out([Shard(name, 0, 1) for name in jobs], lambda shard: jobs[shard.job],
                     collect_shard,
                     workers=workers if ray is None else (workers if workers > 1 else None),
-                    ray=ray, max_attempts=1, worker=run_point, cpu_sets=pinned,
+                    ray=ray, max_attempts=1, worker=run_point, cpu_sets=place.pinned,
                     ray_resources=resources, echo=echo)
     finally:
         write_summary(out, summary)
-    return summary
 
 
 def _gpus_per_task(device: str, ray: str | None, gpus_per_task: float | None) -> float:

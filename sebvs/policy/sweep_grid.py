@@ -3,25 +3,18 @@ every combination of the axes' values is one training point.
 
     task = "nav"
     data = "datasets/nav"          # relative paths are taken from the current directory
-
     [train]                        # one value per setting, shared by every point
     epochs = 10
-    size = 160
-
     [axes]                         # a list per setting; the grid is their product
     modality = ["rgb", "event", "rgb+event"]
     seed = [0, 1, 2]
-    lr = [2e-4, 5e-4]
 
 The settings are `sebvs train`'s options, spelled with underscores (SETTINGS); one left
-out takes `sebvs train`'s default (the paper's, per task). Torch threads and the device
-are the command's (`sebvs train-sweep --threads / --device`), not the grid's: they decide
-how points run, not what they learn.
-
-A point's name, and its directory under the sweep's output, is ``key=value`` joined by
-``__``: modality and seed always, then every other axis in name order, e.g.
-``modality=event__seed=1__lr=0.0005``. It depends on the values only, not on the order
-the file lists them in, so a rerun of the same grid finds its points again.
+out takes `sebvs train`'s default. Torch threads and the device are the command's, not
+the grid's: they decide how points run, not what they learn. A point's name, and its
+directory, is ``key=value`` joined by ``__``: modality and seed always, then every other
+axis in name order (``modality=event__seed=1__lr=0.0005``). It depends on the values
+only, not on the order the file lists them in, so a rerun finds its points again.
 """
 from __future__ import annotations
 

@@ -1,6 +1,9 @@
 """A sweep's summary: ``sweep.json`` (every point: settings, status, numbers) and
 ``sweep.md`` (the points and their seed groups sorted by the best validation loss).
 
+    write_summary(out, summary)         # out/sweep.json and out/sweep.md, atomically
+    print(format_markdown(summary))
+
 A point's status: "trained" (by this run), "skipped" (trained by an earlier run; its numbers
 read back from its config), "failed" (with its error), "interrupted" or "pending" (not
 run, or not finished, when the sweep stopped). Only trained and skipped points count in

@@ -1,19 +1,24 @@
 """Behaviour cloning of the ERP variants (paper section 4.2), seeded and reproducible on CPU.
 
-    nav: Adam lr 2e-4, weight decay 1e-4, MSE, 10 epochs, batch 32, early stopping patience 2
-    arm: Adam lr 1e-4, ReduceLROnPlateau(factor 0.5, patience 2, threshold 1e-4 absolute),
-         Smooth L1, 10 epochs, batch 32, early stopping (patience 4 here: with 2, training
-         would stop before the scheduler's first halving could ever act)
+    train("datasets/nav", "ck", "nav", ["rgb", "rgb+event"], epochs=2,
+          norm=Normalisation(size=64))    # the paper's settings, these ones overridden
 
-The split is by episode. The weights of the best validation epoch are saved. A loss
+nav: Adam lr 2e-4, weight decay 1e-4, MSE, 10 epochs, batch 32, early stopping patience 2.
+arm: Adam lr 1e-4, ReduceLROnPlateau(factor 0.5, patience 2, threshold 1e-4 absolute),
+Smooth L1, 10 epochs, batch 32, early stopping (patience 4 here: with 2, training would
+stop before the scheduler's first halving could ever act).
+
+The split is by episode; the weights of the best validation epoch are saved. A loss
 (every batch, training and validation) or a weight (after every epoch) gone NaN or
 infinite stops the training at once with one line (TrainingDiverged), nothing written.
-Outputs in ``out``: ``<task>-<modality>.pt`` + ``.json`` per variant,
-``<task>-<modality>-losses.csv`` per variant and ``<task>-losses.png`` with every variant
-trained into that directory on one plot (the paper's Fig. 6).
+Outputs in ``out``: ``<task>-<modality>.pt`` + ``.json`` and ``<task>-<modality>-losses.csv``
+per variant, and ``<task>-losses.png``, every variant trained into ``out`` on one plot
+(the paper's Fig. 6). One variant is four steps: `load_training_data`,
+`deterministic_torch`, `fit`, `finish`.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -26,9 +31,9 @@ from .checkpoint import model_config, save_checkpoint
 # defined beside the checkpoint schema, which checks a config's stem the same way
 from .checkpoint_schema import FUSION_STEMS, check_stem  # noqa: F401
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, available_memory,
-                      content_digest, dataset_hash, event_frames_of, load_index,
-                      split_episodes)
-from .inputs import CONTROL_MODALITIES, MODALITIES, MODALITY_INPUTS, Normalisation, channels
+                      content_digest, dataset_hash, emulator_of, event_frames_of,
+                      load_index, split_episodes)
+from .inputs import Modality, Normalisation
 from .resume import (NonFiniteState, first_non_finite, fingerprint, load_state, resume_path,
                      save_state)
 from .subnormal import ZeroSubnormals
@@ -161,31 +166,90 @@ def loader_workers(device: str, cpus: int | None = None) -> int:
     return 0 if device == "cpu" else max(0, min(8, cpus - 1))
 
 
-def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSettings,
-                  progress: bool = True, log=print) -> dict:
-    """Train one modality; writes its checkpoint, config and loss CSV. Returns the config."""
-    import numpy as np
-    import torch
-    from torch.utils.data import DataLoader
+def train_variant(data: str | Path, out: str | Path, modality: Modality | str,
+                  s: TrainSettings, progress: bool = True, log=print) -> dict:
+    """Train one modality; writes its checkpoint, config and loss CSV.
 
-    from .model import ERP, count_parameters
+    Parameters:
+        data: the dataset directory; out: where the outputs go.
+        modality: the modality, or its name; s: the settings (the recording decides the
+            event bins, see `load_training_data`).
+        progress: tqdm bars; log: takes each line (the epochs, the resume, the cache).
+
+    Returns:
+        The config written beside the checkpoint (less its version).
+    """
+    modality = Modality.parse(modality)
     check_stem(s.stem, modality)
-    data, out = Path(data), Path(out)
+    out = Path(out)
+    td = load_training_data(Path(data), modality, s, progress, log)
+    try:
+        with deterministic_torch(td.settings):
+            fitted = fit(td, out, progress, log)
+    finally:
+        td.close()
+    return finish(td, fitted, out)
+
+
+@dataclass
+class TrainingData:
+    """What one variant trains on (`load_training_data`)."""
+    root: Path                    # the dataset directory
+    modality: Modality
+    settings: TrainSettings       # the settings asked for, the recording's event bins in
+    episodes: list[dict]          # every episode of the index
+    train_episodes: list[dict]
+    val_episodes: list[dict]
+    train_set: EpisodeFrames
+    val_set: EpisodeFrames
+    event_frames: dict | None     # dataset.event_frames_of: modalities with events only
+    emulator: dict | None         # dataset.emulator_of: modalities with events only
+
+    def close(self) -> None:
+        self.train_set.close()
+        self.val_set.close()
+
+
+def load_training_data(data: Path, modality: Modality, s: TrainSettings,
+                       progress: bool = True, log=print) -> TrainingData:
+    """The data step: the dataset's episodes, what its event frames and emulator are
+    (modalities with events), the seeded split by episode, and a reader of each side,
+    its frames read into memory first when the cache says so (`_use_cache`).
+
+    Parameters:
+        data: the dataset directory; modality, s: the variant and its settings.
+        progress: tqdm bars for the preload; log: takes the cache's line.
+
+    Returns:
+        The TrainingData; its settings' event_bins are the recording's.
+    """
     episodes = load_index(data, s.task)
-    event_frames = None
-    if "events" in MODALITY_INPUTS[modality]:
+    event_frames = emulator = None
+    if modality.has_events:
         # the recording decides the event input (counts or K time bins); the model follows
         event_frames = event_frames_of(data, episodes)
+        emulator = emulator_of(data, episodes)
         s = replace(s, norm=replace(s.norm, event_bins=event_frames["bins"]))
     train_eps, val_eps = split_episodes(episodes, s.val_fraction, s.seed)
     train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
     val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
     val_set = EpisodeFrames(data, val_eps, s.task, modality, s.norm, val_cap)
-
     if _use_cache(s.cache, train_set, val_set, log):
         held = train_set.preload(progress) + val_set.preload(progress)
         log(f"  frames in memory: {held / 2**20:,.0f} MiB")
+    return TrainingData(data, modality, s, episodes, train_eps, val_eps, train_set, val_set,
+                        event_frames, emulator)
 
+
+@contextlib.contextmanager
+def deterministic_torch(s: TrainSettings):
+    """The torch settings step: ``s.threads`` threads (0 leaves torch's) and deterministic
+    kernels for the block, torch's own settings restored after it.
+
+    Parameters:
+        s: the settings (threads, device).
+    """
+    import torch
     prev_threads = torch.get_num_threads()
     prev_det = torch.are_deterministic_algorithms_enabled()
     if s.threads:
@@ -196,125 +260,244 @@ def train_variant(data: str | Path, out: str | Path, modality: str, s: TrainSett
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     torch.use_deterministic_algorithms(True, warn_only=s.device != "cpu")
     try:
-        _seed_everything(s.seed)
-        model = ERP(s.task, channels(modality, s.norm.event_bins), s.norm.size, stem=s.stem)
-        target_stats = None
-        if s.task == "arm":
-            target_stats = pose_stats(train_set.targets())
-            model.head.set_target_stats(target_stats["mean"], target_stats["scale"])
-        model = model.to(s.device)
-        gen = torch.Generator().manual_seed(s.seed)
-        # Up to OPEN_EPISODES training episodes, a plain shuffle (every file stays open);
-        # beyond, shuffled blocks of episodes so that a file is opened once per epoch.
-        order = ({"shuffle": True, "generator": gen} if len(train_eps) <= OPEN_EPISODES else
-                 {"sampler": EpisodeBlockSampler(train_set.pairs[:, 0], OPEN_EPISODES, gen)})
-        # Workers start afresh every epoch: a persistent loader draws its base seed from
-        # the shuffle's generator once, where one without workers draws it every epoch,
-        # and the second epoch's order would then depend on the worker count.
-        train_loader = DataLoader(train_set, batch_size=s.batch, **order,
-                                  num_workers=s.num_workers, collate_fn=_collate)
-        val_loader = DataLoader(val_set, batch_size=s.batch, shuffle=False,
-                                num_workers=s.num_workers, collate_fn=_collate)
-        optimizer = torch.optim.Adam(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
-        scheduler = (torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, mode="min",
-                                                                **s.plateau)
-                     if s.plateau else None)
-        criterion = torch.nn.MSELoss() if s.loss == "mse" else torch.nn.SmoothL1Loss()
-        zeroer = ZeroSubnormals(model, optimizer) if s.zero_subnormals else None
-        log(f"train {s.task}-{modality}: {count_parameters(model)} parameters, "
-            f"{len(train_set)} train frames ({len(train_eps)} episodes), "
-            f"{len(val_set)} validation frames ({len(val_eps)} episodes), size {s.norm.size}")
-
-        rows, best, best_state, bad = [], math.inf, None, 0
-        data_hash = dataset_hash(data, episodes)
-        state_file = resume_path(out, s.task, modality)
-        key = fingerprint(s, modality, content_digest(data, episodes, modality))
-        first, seconds_before, resumed = 1, 0.0, []
-        state = load_state(state_file, key, log)
-        if state is not None:
-            model.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-            if scheduler is not None:
-                scheduler.load_state_dict(state["scheduler"])
-            gen.set_state(state["generator"])
-            torch.set_rng_state(state["torch_rng"])
-            rows, best, best_state, bad = (state["rows"], state["best"], state["best_state"],
-                                           state["bad"])
-            first = state["epoch"] + 1 if bad < s.patience else s.epochs + 1
-            seconds_before, resumed = state["seconds"], [*state["resumed"], state["epoch"]]
-            log(f"  resuming after epoch {state['epoch']} ({state_file.name})")
-        t0 = time.monotonic()
-        name = f"{s.task}-{modality}"
-        for epoch in range(first, s.epochs + 1):
-            tag = f"{name} {epoch}/{s.epochs}"
-            lr = optimizer.param_groups[0]["lr"]
-            zeroed_before, epoch_t0 = (zeroer.total if zeroer else 0), time.monotonic()
-            tr = _finite_epoch(name, "training", epoch, model, train_loader, criterion,
-                               optimizer, f"{tag} train", progress, s.device, after_step=zeroer)
-            # a last step can make a weight NaN with its batch's loss still finite; a
-            # buffer (BatchNorm statistics) can go with no training loss seeing it at all
-            broken = first_non_finite(model.state_dict())
-            if broken is not None:
-                raise TrainingDiverged(f"{name}: weight {broken} is not finite after epoch "
-                                       f"{epoch}; stopped, no checkpoint written")
-            va = _finite_epoch(name, "validation", epoch, model, val_loader, criterion, None,
-                               f"{tag} val", progress, s.device)
-            rows.append({"modality": modality, "epoch": epoch, "train_loss": tr,
-                         "val_loss": va, "lr": lr})
-            log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}  "
-                f"{time.monotonic() - epoch_t0:,.0f} s"
-                + (f"  subnormals zeroed {zeroer.total - zeroed_before:,}" if zeroer else ""))
-            if va < best:
-                best, bad = va, 0
-                best_state = {k: v.detach().to("cpu", copy=True)
-                              for k, v in model.state_dict().items()}
-            else:
-                bad += 1
-            if scheduler is not None:
-                scheduler.step(va)
-            try:    # the weights are finite (above); Adam's moments need not be
-                save_state(state_file, {
-                    "fingerprint": key, "epoch": epoch, "model": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict() if scheduler is not None else None,
-                    "generator": gen.get_state(), "torch_rng": torch.get_rng_state(),
-                    "rows": rows, "best": best, "best_state": best_state, "bad": bad,
-                    "seconds": seconds_before + time.monotonic() - t0, "resumed": resumed})
-            except NonFiniteState as exc:
-                raise TrainingDiverged(f"{name}: after epoch {epoch}, {exc}; stopped, no "
-                                       f"checkpoint written") from None
-            if bad >= s.patience:
-                log(f"  early stop: no better validation loss for {bad} epochs")
-                break
-        model.cpu()
-        if best_state is not None:     # else no epoch ran (resumed past the last)
-            model.load_state_dict(best_state)
+        yield
     finally:
         torch.use_deterministic_algorithms(prev_det)
         torch.set_num_threads(prev_threads)
-        train_set.close()
-        val_set.close()
 
-    config = {**model_config(s.task, modality, s.norm, s.stem),
-              "parameters": count_parameters(model),
-              **({"target_stats": target_stats} if target_stats else {}),
-              **({"event_frames": event_frames} if event_frames else {}),
-              "dataset": {"path": str(data), "hash": data_hash,
-                          "train_episodes": [e["file"] for e in train_eps],
-                          "val_episodes": [e["file"] for e in val_eps],
-                          "train_frames": len(train_set), "val_frames": len(val_set)},
+
+@dataclass
+class Fitting:
+    """A model and everything that trains it (`_start_fitting`)."""
+    settings: TrainSettings
+    modality: Modality
+    name: str                     # <task>-<modality>, as the lines and errors say it
+    model: object                 # ERP, on the settings' device
+    optimizer: object
+    scheduler: object | None      # ReduceLROnPlateau, where the settings name one
+    criterion: object
+    zeroer: ZeroSubnormals | None
+    generator: object             # the shuffle's torch.Generator
+    train_loader: object
+    val_loader: object
+    target_stats: dict | None     # the arm pose's standardisation (pose_stats)
+
+
+@dataclass
+class FitProgress:
+    """The epochs so far: what the resume state saves, and the early stopping's count."""
+    rows: list[dict] = field(default_factory=list)    # one per epoch: the loss CSV's rows
+    best: float = math.inf                             # the best validation loss
+    best_state: dict | None = None                     # its weights (on the CPU)
+    bad: int = 0                                       # epochs since it
+    first: int = 1                                     # the epoch to run next
+    seconds_before: float = 0.0                        # spent before a resume
+    resumed: list[int] = field(default_factory=list)   # epochs a resume went on after
+
+
+@dataclass
+class Fitted:
+    """What `fit` leaves for `finish`."""
+    model: object                 # the best epoch's weights, on the CPU
+    progress: FitProgress
+    target_stats: dict | None
+    data_hash: str                # dataset.dataset_hash
+    state_file: Path              # the resume state, removed once the checkpoint is written
+    seconds: float                # training time, resumed runs' included
+
+
+def fit(td: TrainingData, out: Path, progress: bool = True, log=print) -> Fitted:
+    """The fit step: seed, build the model and its optimizer, go on from a resume state
+    of the same settings and data if there is one, and run the epochs to the last or to
+    early stopping; the best validation epoch's weights are kept. Torch's settings are
+    the caller's (`deterministic_torch`).
+
+    Parameters:
+        td: the data step's result; out: where the resume state is kept.
+        progress: tqdm bars; log: takes the lines.
+
+    Returns:
+        The Fitted. TrainingDiverged when a loss or a weight goes NaN or infinite.
+    """
+    s, modality = td.settings, td.modality
+    _seed_everything(s.seed)
+    run = _start_fitting(td)
+    from .model import count_parameters
+    log(f"train {s.task}-{modality}: {count_parameters(run.model)} parameters, "
+        f"{len(td.train_set)} train frames ({len(td.train_episodes)} episodes), "
+        f"{len(td.val_set)} validation frames ({len(td.val_episodes)} episodes), "
+        f"size {s.norm.size}")
+    data_hash = dataset_hash(td.root, td.episodes)
+    state_file = resume_path(out, s.task, modality)
+    key = fingerprint(s, modality, content_digest(td.root, td.episodes, modality))
+    done = _resume(run, state_file, key, s, log)
+    t0 = time.monotonic()
+    for epoch in range(done.first, s.epochs + 1):
+        _run_epoch(run, done, epoch, progress, log)
+        _save_epoch_state(run, done, epoch, state_file, key, t0)
+        if done.bad >= s.patience:
+            log(f"  early stop: no better validation loss for {done.bad} epochs")
+            break
+    run.model.cpu()
+    if done.best_state is not None:     # else no epoch ran (resumed past the last)
+        run.model.load_state_dict(done.best_state)
+    return Fitted(run.model, done, run.target_stats, data_hash, state_file,
+                  done.seconds_before + time.monotonic() - t0)
+
+
+def _start_fitting(td: TrainingData) -> Fitting:
+    """The model (its arm pose standardised from the training targets), optimizer,
+    schedule, loss and the two loaders; after `_seed_everything`, which the weights'
+    initialisation draws on."""
+    import torch
+    from torch.utils.data import DataLoader
+
+    from .model import ERP
+    s = td.settings
+    model = ERP(s.task, td.modality.channels(s.norm.event_bins), s.norm.size, stem=s.stem)
+    target_stats = None
+    if s.task == "arm":
+        target_stats = pose_stats(td.train_set.targets())
+        model.head.set_target_stats(target_stats["mean"], target_stats["scale"])
+    model = model.to(s.device)
+    gen = torch.Generator().manual_seed(s.seed)
+    # Up to OPEN_EPISODES training episodes, a plain shuffle (every file stays open);
+    # beyond, shuffled blocks of episodes so that a file is opened once per epoch.
+    order = ({"shuffle": True, "generator": gen}
+             if len(td.train_episodes) <= OPEN_EPISODES else
+             {"sampler": EpisodeBlockSampler(td.train_set.pairs[:, 0], OPEN_EPISODES, gen)})
+    # Workers start afresh every epoch: a persistent loader draws its base seed from
+    # the shuffle's generator once, where one without workers draws it every epoch,
+    # and the second epoch's order would then depend on the worker count.
+    train_loader = DataLoader(td.train_set, batch_size=s.batch, **order,
+                              num_workers=s.num_workers, collate_fn=_collate)
+    val_loader = DataLoader(td.val_set, batch_size=s.batch, shuffle=False,
+                            num_workers=s.num_workers, collate_fn=_collate)
+    optimizer = torch.optim.Adam(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+    scheduler = (torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, mode="min",
+                                                            **s.plateau)
+                 if s.plateau else None)
+    criterion = torch.nn.MSELoss() if s.loss == "mse" else torch.nn.SmoothL1Loss()
+    zeroer = ZeroSubnormals(model, optimizer) if s.zero_subnormals else None
+    return Fitting(s, td.modality, f"{s.task}-{td.modality}", model, optimizer, scheduler,
+                   criterion, zeroer, gen, train_loader, val_loader, target_stats)
+
+
+def _resume(run: Fitting, state_file: Path, key: str, s: TrainSettings, log) -> FitProgress:
+    """The progress to go on from: a resume state's, loaded into ``run`` (model,
+    optimizer, schedule, the shuffle's and torch's generators), when it was saved by the
+    same settings on the same data (``key``); else a fresh start."""
+    import torch
+    state = load_state(state_file, key, log)
+    if state is None:
+        return FitProgress()
+    run.model.load_state_dict(state["model"])
+    run.optimizer.load_state_dict(state["optimizer"])
+    if run.scheduler is not None:
+        run.scheduler.load_state_dict(state["scheduler"])
+    run.generator.set_state(state["generator"])
+    torch.set_rng_state(state["torch_rng"])
+    bad = state["bad"]
+    log(f"  resuming after epoch {state['epoch']} ({state_file.name})")
+    return FitProgress(rows=state["rows"], best=state["best"], best_state=state["best_state"],
+                       bad=bad, first=state["epoch"] + 1 if bad < s.patience else s.epochs + 1,
+                       seconds_before=state["seconds"],
+                       resumed=[*state["resumed"], state["epoch"]])
+
+
+def _run_epoch(run: Fitting, done: FitProgress, epoch: int, progress: bool, log) -> None:
+    """One epoch: train, check the weights, validate, log its line, keep the weights if
+    they are the best so far (else count the epoch for early stopping), step the
+    schedule. TrainingDiverged when a loss or a weight is not finite."""
+    s, name = run.settings, run.name
+    tag = f"{name} {epoch}/{s.epochs}"
+    lr = run.optimizer.param_groups[0]["lr"]
+    zeroer = run.zeroer
+    zeroed_before, epoch_t0 = (zeroer.total if zeroer else 0), time.monotonic()
+    tr = _finite_epoch(name, "training", epoch, run.model, run.train_loader, run.criterion,
+                       run.optimizer, f"{tag} train", progress, s.device, after_step=zeroer)
+    # a last step can make a weight NaN with its batch's loss still finite; a
+    # buffer (BatchNorm statistics) can go with no training loss seeing it at all
+    broken = first_non_finite(run.model.state_dict())
+    if broken is not None:
+        raise TrainingDiverged(f"{name}: weight {broken} is not finite after epoch "
+                               f"{epoch}; stopped, no checkpoint written")
+    va = _finite_epoch(name, "validation", epoch, run.model, run.val_loader, run.criterion,
+                       None, f"{tag} val", progress, s.device)
+    # the name, not the Modality: the rows go into the resume state, which torch reads
+    # back with weights_only (plain values only)
+    done.rows.append({"modality": run.modality.value, "epoch": epoch, "train_loss": tr,
+                      "val_loss": va, "lr": lr})
+    log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}  "
+        f"{time.monotonic() - epoch_t0:,.0f} s"
+        + (f"  subnormals zeroed {zeroer.total - zeroed_before:,}" if zeroer else ""))
+    if va < done.best:
+        done.best, done.bad = va, 0
+        done.best_state = {k: v.detach().to("cpu", copy=True)
+                           for k, v in run.model.state_dict().items()}
+    else:
+        done.bad += 1
+    if run.scheduler is not None:
+        run.scheduler.step(va)
+
+
+def _save_epoch_state(run: Fitting, done: FitProgress, epoch: int, state_file: Path,
+                      key: str, t0: float) -> None:
+    """Write the resume state after ``epoch`` (resume.save_state: atomically, refused
+    when a value is not finite, which stops the training)."""
+    import torch
+    try:    # the weights are finite (checked in the epoch); Adam's moments need not be
+        save_state(state_file, {
+            "fingerprint": key, "epoch": epoch, "model": run.model.state_dict(),
+            "optimizer": run.optimizer.state_dict(),
+            "scheduler": run.scheduler.state_dict() if run.scheduler is not None else None,
+            "generator": run.generator.get_state(), "torch_rng": torch.get_rng_state(),
+            "rows": done.rows, "best": done.best, "best_state": done.best_state,
+            "bad": done.bad, "seconds": done.seconds_before + time.monotonic() - t0,
+            "resumed": done.resumed})
+    except NonFiniteState as exc:
+        raise TrainingDiverged(f"{run.name}: after epoch {epoch}, {exc}; stopped, no "
+                               f"checkpoint written") from None
+
+
+def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
+    """The finish step: the config (the model's, and the records of the dataset, the
+    training and the recording's events), the checkpoint and the loss CSV written, the
+    resume state removed.
+
+    Parameters:
+        td: the data step's result; fitted: the fit step's; out: where the outputs go.
+
+    Returns:
+        The config (less the version save_checkpoint adds).
+    """
+    import numpy as np
+    import torch
+
+    from .model import count_parameters
+    s, done = td.settings, fitted.progress
+    config = {**model_config(s.task, td.modality, s.norm, s.stem),
+              "parameters": count_parameters(fitted.model),
+              **({"target_stats": fitted.target_stats} if fitted.target_stats else {}),
+              **({"event_frames": td.event_frames} if td.event_frames else {}),
+              **({"emulator": td.emulator} if td.emulator else {}),
+              "dataset": {"path": str(td.root), "hash": fitted.data_hash,
+                          "train_episodes": [e["file"] for e in td.train_episodes],
+                          "val_episodes": [e["file"] for e in td.val_episodes],
+                          "train_frames": len(td.train_set), "val_frames": len(td.val_set)},
               "training": {"lr": s.lr, "weight_decay": s.weight_decay, "loss": s.loss,
                            "batch": s.batch, "device": s.device, "epochs": s.epochs,
-                           "epochs_run": len(rows),
+                           "epochs_run": len(done.rows),
                            "patience": s.patience, "plateau": s.plateau,
-                           "best_val_loss": best, "seed": s.seed, "max_frames": s.max_frames,
+                           "best_val_loss": done.best, "seed": s.seed,
+                           "max_frames": s.max_frames,
                            **({"zero_subnormals": True} if s.zero_subnormals else {}),
-                           "seconds": round(seconds_before + time.monotonic() - t0, 2),
-                           **({"resumed_after_epochs": resumed} if resumed else {})},
+                           "seconds": round(fitted.seconds, 2),
+                           **({"resumed_after_epochs": done.resumed} if done.resumed else {})},
               "torch": torch.__version__, "numpy": np.__version__}
-    save_checkpoint(model, config, out)
-    write_losses_csv(rows, out / f"{s.task}-{modality}-losses.csv")
-    state_file.unlink(missing_ok=True)
+    save_checkpoint(fitted.model, config, out)
+    write_losses_csv(done.rows, out / f"{s.task}-{td.modality}-losses.csv")
+    fitted.state_file.unlink(missing_ok=True)
     return config
 
 
@@ -364,7 +547,7 @@ def plot_losses(out: str | Path, task: str) -> Path | None:
     import matplotlib.pyplot as plt
     out = Path(out)
     curves = {}
-    for m in MODALITIES + CONTROL_MODALITIES:
+    for m in Modality:
         p = out / f"{task}-{m}-losses.csv"
         if p.exists():
             with open(p) as f:
@@ -399,11 +582,13 @@ def settings_for(task: str, **overrides) -> TrainSettings:
     return replace(paper_settings(task), **{k: v for k, v in overrides.items() if v is not None})
 
 
-def train(data: str | Path, out: str | Path, task: str, modalities: list[str],
-          progress: bool = True, log=print, **overrides) -> dict[str, dict]:
+def train(data: str | Path, out: str | Path, task: str, modalities: list[Modality | str],
+          progress: bool = True, log=print, **overrides) -> dict[Modality, dict]:
     """Train each modality in turn with the paper's settings for ``task`` (``overrides``
-    replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64))."""
+    replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64)); returns
+    each one's config."""
     s = settings_for(task, **overrides)
+    modalities = [Modality.parse(m) for m in modalities]
     for m in modalities:             # refuse before the first modality trains, not after
         check_stem(s.stem, m)
     results = {}

@@ -1,23 +1,19 @@
 """The camera actor's rendering without its messaging: the sim's states in, the frames that
 are due out.
 
-actors/camera.py wires this to the runtime (a state message in, an emit per output), and
-sebvs.envs calls it in process (the Gymnasium environments): one code path, so the frames
-are the same bit for bit. See actors/camera.py for the outputs and the two sensors
-("ideal8", "physical").
-
     cam = CameraCore(params, wanted={"rgb", "luma"}, seed=camera_seed)
     for output, arrays, meta in cam.sample(state, state_meta, alloc):
         ...              # each as it is made; alloc(output, {name: (shape, dtype)})
     cam.close()
 
-`params` has the camera actor's Params fields (camera, rgb_hz, dvs_hz, luma_scale, sensor,
-frame_camera, frame_overrides, subframe_s, max_subframes, radiance_ratio, and luma_sampling
-with luma_fraction, luma_threshold, luma_floor_hz, luma_ceiling_hz; without luma_sampling:
-"fixed"); `alloc` gives the arrays a frame is rendered into (the actor's shared-memory
-slots, or plain arrays). With luma_sampling "adaptive" (sebvs/dvs/adaptive.py) a state can
-also bring luma samples from between the previous state and itself: each with its own
-meta t_ep (earlier than the state's), control False, before the state's own luma.
+actors/camera.py wires this to the runtime (a state message in, an emit per output), and
+sebvs.envs calls it in process (the Gymnasium environments): one code path, so the frames
+are the same bit for bit; actors/camera.py says the outputs and the two sensors ("ideal8",
+"physical"). `params` has the camera actor's Params fields (luma_sampling "fixed" where
+it has none); `alloc` gives the arrays a frame is rendered into (the actor's shared-memory
+slots, or plain arrays). With luma_sampling "adaptive" (sebvs/dvs/adaptive.py) a state
+can also bring luma samples from between the previous state and itself: each with its
+own meta t_ep (earlier than the state's), control False, before the state's own luma.
 """
 from __future__ import annotations
 
@@ -168,48 +164,97 @@ class CameraCore:
         at once). The physical frame camera's image comes last: the event sensor's luma
         and the privileged renders are on their way while the exposure is integrated.
         Iterate to the end: the camera's state moves on as the outputs are made."""
-        if "control_hz" in meta:
-            self.control_hz = meta["control_hz"]
-        if "config" in meta and (meta["scene"], meta["config"]) != self.key:
-            self.build(meta["scene"], meta["config"])
-        if self.renderer is None:
-            self.counts["no_model"] += 1      # joined mid-episode: wait for the next start
+        if not self._ready_for(meta):
             return
         ep, t_ep, control = meta.get("episode"), float(meta.get("t_ep", 0.0)), \
             bool(meta.get("control", False))
         p = self.params
         if ep != self.episode:
-            self.episode = ep
-            self.rgb_rate, self.luma_rate = Rate(p.rgb_hz), Rate(p.dvs_hz)
-            self.history.clear()
-            self.last_t = None
-            self.previous = None
-            if self.sampler is not None:
-                self.sampler.reset()
-            if self.physical:
-                self.states.clear()
-                self.next_t_end = None
-                self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
-        # Luma on every control sample too, whatever dvs_hz: the emulator's packets carry
-        # that flag to the accumulator, which closes its windows on it.
-        between: list[tuple[str, dict, dict]] = []
+            self._new_episode(ep)
+        want_luma, between = self._luma_due(state, ep, t_ep, control)
+        self._check_state_rate(t_ep)
+        rgb_due = control if p.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
+        want_rgb = "rgb" in self.wanted and rgb_due
+        want_ideal = "ideal" in self.wanted and rgb_due
+        self._keep_state(state, t_ep, want_rgb)
+        if not (want_luma or want_rgb or want_ideal
+                or (rgb_due and self.wanted & {"depth", "seg"})):
+            yield from between
+            return
+        out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
+        self.pose(state)
+        self.renderer.update(self.data, self.cam)   # the scene of every size (luma's too)
+        # an unblurred RGB render of this sample, if one was made
+        sharp = yield from self._ideal_frames(want_rgb and not self.physical, want_ideal,
+                                              out_meta, meta.get("truth"), alloc)
+        yield from between              # luma in time order: those before this state first
+        if want_luma:
+            yield self._luma_frame(state, t_ep, out_meta, alloc, sharp)
+        if rgb_due:
+            yield from self._privileged_frames(out_meta, alloc)
+        if want_rgb and self.physical:
+            # last: its sub-frames re-pose the model, which the renders above read posed
+            frame = self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc)
+            self.next_t_end = self._next_exposure_end(
+                meta.get("t_next_control") if p.rgb_hz <= 0 else None, t_ep)
+            yield frame
+
+    def _ready_for(self, meta: dict) -> bool:
+        """Take a state's control rate and scene (compiled anew when it changed); False,
+        counted in no_model, while no scene is compiled (joined mid-episode: the next
+        episode's start brings one)."""
+        if "control_hz" in meta:
+            self.control_hz = meta["control_hz"]
+        if "config" in meta and (meta["scene"], meta["config"]) != self.key:
+            self.build(meta["scene"], meta["config"])
+        if self.renderer is None:
+            self.counts["no_model"] += 1
+            return False
+        return True
+
+    def _new_episode(self, ep) -> None:
+        """Start episode ``ep``: fresh rates, blur history and samplers; the physical
+        rig's noise seeded from the camera's seed and the episode number."""
+        p = self.params
+        self.episode = ep
+        self.rgb_rate, self.luma_rate = Rate(p.rgb_hz), Rate(p.dvs_hz)
+        self.history.clear()
+        self.last_t = None
+        self.previous = None
+        if self.sampler is not None:
+            self.sampler.reset()
+        if self.physical:
+            self.states.clear()
+            self.next_t_end = None
+            self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
+
+    def _luma_due(self, state: dict, ep, t_ep: float, control: bool
+                  ) -> tuple[bool, list[tuple[str, dict, dict]]]:
+        """(whether this state's luma is due, the adaptive sampler's luma samples between
+        the previous state and this one). Luma on every control sample too, whatever
+        dvs_hz: the emulator's packets carry that flag to the accumulator, which closes
+        its windows on it."""
+        if "luma" not in self.wanted:
+            return False, []
         if self.sampler is None:
-            want_luma = "luma" in self.wanted and (self.luma_rate.due(t_ep) or control)
-        elif "luma" in self.wanted:
-            between = self._luma_between(state, ep, t_ep)
-            self.previous = (t_ep, {k: np.array(a) for k, a in state.items()})
-            want_luma = control or self.sampler.due(t_ep)
-        else:
-            want_luma = False
+            return self.luma_rate.due(t_ep) or control, []
+        between = self._luma_between(state, ep, t_ep)
+        self.previous = (t_ep, {k: np.array(a) for k, a in state.items()})
+        return control or self.sampler.due(t_ep), between
+
+    def _check_state_rate(self, t_ep: float) -> None:
+        """Warn once when the states come slower than dvs_hz asks for."""
+        p = self.params
         if self.last_t is not None and p.dvs_hz > 0 and not self.warned_rate \
                 and t_ep - self.last_t > 1.5 / p.dvs_hz:
             self.warned_rate = True
             self.log.warning("states arrive every %.4f s, slower than dvs_hz %g: raise the "
                              "sim's render_hz", t_ep - self.last_t, p.dvs_hz)
         self.last_t = t_ep
-        rgb_due = control if p.rgb_hz <= 0 else self.rgb_rate.due(t_ep)
-        want_rgb = "rgb" in self.wanted and rgb_due
-        want_ideal = "ideal" in self.wanted and rgb_due
+
+    def _keep_state(self, state: dict, t_ep: float, want_rgb: bool) -> None:
+        """Keep what later frames need of this state: the physical camera's state history
+        (and the next frame's sub-frames that it fixes), and the blur history."""
         if self.physical and "rgb" in self.wanted:
             self.states.add(t_ep, state)
             if not want_rgb and self.next_t_end is not None:
@@ -220,34 +265,36 @@ class CameraCore:
         # physical camera integrates its own sub-frames from self.states)
         if self.blur > 1 and self.wanted & ({"ideal"} if self.physical else {"rgb", "ideal"}):
             self._remember(state)
-        if not (want_luma or want_rgb or want_ideal
-                or (rgb_due and self.wanted & {"depth", "seg"})):
-            yield from between
-            return
-        out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
-        self.pose(state)
-        r = self.renderer
-        r.update(self.data, self.cam)     # the scene of every size (luma_renderer's too)
-        sharp = None          # an unblurred RGB render of this sample, if made
-        ideal_outputs = [o for o, due in (("rgb", want_rgb and not self.physical),
-                                          ("ideal", want_ideal)) if due]
-        if ideal_outputs:
-            outs = {o: alloc(o, {"rgb": ((self.h, self.w, 3), np.uint8)})
-                    for o in ideal_outputs}
-            first = outs[ideal_outputs[0]]["rgb"]
-            if self.blur > 1:
-                # the history ends with this sample, so its pose is the one left in
-                # self.data and in the scene for the luma, depth and seg renders below
-                r.rgb_blurred(self.data, self.cam, self.history, first, self.pose)
-            else:
-                sharp = r.rgb(first)
-            for o in ideal_outputs:
-                if outs[o]["rgb"] is not first:
-                    np.copyto(outs[o]["rgb"], first)
-                self.counts[o] += 1
-                yield o, outs[o], {**out_meta, "truth": meta.get("truth")}
-        yield from between              # luma in time order: those before this state first
-        if want_luma and self.physical:
+
+    def _ideal_frames(self, want_rgb: bool, want_ideal: bool, out_meta: dict, truth,
+                      alloc: Alloc):
+        """Yield the ideal render as each of the outputs that want it ("rgb" on the 8-bit
+        sensor, "ideal"), blurred over the history where the scene blurs; returns the
+        unblurred render it made, or None."""
+        ideal_outputs = [o for o, due in (("rgb", want_rgb), ("ideal", want_ideal)) if due]
+        if not ideal_outputs:
+            return None
+        sharp = None
+        outs = {o: alloc(o, {"rgb": ((self.h, self.w, 3), np.uint8)}) for o in ideal_outputs}
+        first = outs[ideal_outputs[0]]["rgb"]
+        if self.blur > 1:
+            # the history ends with this sample, so its pose is the one left in
+            # self.data and in the scene for the luma, depth and seg renders below
+            self.renderer.rgb_blurred(self.data, self.cam, self.history, first, self.pose)
+        else:
+            sharp = self.renderer.rgb(first)
+        for o in ideal_outputs:
+            if outs[o]["rgb"] is not first:
+                np.copyto(outs[o]["rgb"], first)
+            self.counts[o] += 1
+            yield o, outs[o], {**out_meta, "truth": truth}
+        return sharp
+
+    def _luma_frame(self, state: dict, t_ep: float, out_meta: dict, alloc: Alloc,
+                    sharp) -> tuple[str, dict, dict]:
+        """This state's luma: the scene's luminance in cd/m^2 on the physical sensor, else
+        8-bit luma (from ``sharp``, the RGB render, where it is at the luma's size)."""
+        if self.physical:
             arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.float32)})
             lum = self.rig.luminance(self.data, self.cam, self._light_scale(state),
                                      None if self.luma_renderer is not None else arrays["luma"])
@@ -257,33 +304,29 @@ class CameraCore:
             self.counts["luma"] += 1
             if self.sampler is not None:
                 self.sampler.observe(t_ep, log_luminance(arrays["luma"]))
-            yield "luma", arrays, {**out_meta, "units": "cd/m2"}
-        elif want_luma:
-            arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.uint8)})
-            if self.luma_renderer is not None:
-                self.luma_renderer.luma(arrays["luma"])
-            else:
-                r.luma(arrays["luma"], src=sharp)
-            self.counts["luma"] += 1
-            if self.sampler is not None:
-                self.sampler.observe(t_ep, arrays["luma"])
-            yield "luma", arrays, out_meta
-        if rgb_due and "depth" in self.wanted:
+            return "luma", arrays, {**out_meta, "units": "cd/m2"}
+        arrays = alloc("luma", {"luma": ((self.lh, self.lw), np.uint8)})
+        if self.luma_renderer is not None:
+            self.luma_renderer.luma(arrays["luma"])
+        else:
+            self.renderer.luma(arrays["luma"], src=sharp)
+        self.counts["luma"] += 1
+        if self.sampler is not None:
+            self.sampler.observe(t_ep, arrays["luma"])
+        return "luma", arrays, out_meta
+
+    def _privileged_frames(self, out_meta: dict, alloc: Alloc):
+        """Yield the depth and segmentation renders that are wanted."""
+        if "depth" in self.wanted:
             arrays = alloc("depth", {"depth": ((self.h, self.w), np.float32)})
-            r.depth(arrays["depth"])
+            self.renderer.depth(arrays["depth"])
             self.counts["depth"] += 1
             yield "depth", arrays, out_meta
-        if rgb_due and "seg" in self.wanted:
+        if "seg" in self.wanted:
             arrays = alloc("seg", {"seg": ((self.h, self.w, 2), np.int32)})
-            r.segmentation(arrays["seg"])
+            self.renderer.segmentation(arrays["seg"])
             self.counts["seg"] += 1
             yield "seg", arrays, out_meta
-        if want_rgb and self.physical:
-            # last: its sub-frames re-pose the model, which the renders above read posed
-            frame = self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc)
-            self.next_t_end = self._next_exposure_end(
-                meta.get("t_next_control") if p.rgb_hz <= 0 else None, t_ep)
-            yield frame
 
     def _luma_between(self, state: dict, ep, t_ep: float) -> list[tuple[str, dict, dict]]:
         """The luma samples the adaptive sampler asks for between the previous state and

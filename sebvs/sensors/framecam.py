@@ -1,76 +1,17 @@
 """A frame camera after the EMVA 1288 linear model: scene luminance -> electrons -> DN -> image.
 
-Pure numpy. Input is linear scene luminance in cd/m^2: (H, W) for a monochrome camera, or
-(H, W, 3) linear RGB whose channels are each expressed as luminance-equivalent cd/m^2. The
-colour camera has no mosaic: every pixel measures its three channels independently, with
-the same quantum efficiency and its own fixed pattern per channel (no demosaicing, no
-colour crosstalk). Motion blur is not a switch: the caller passes sub-frames spanning the
-exposure, shape (n, H, W[, 3]), oldest first, and the camera integrates their mean over the
-exposure time (see `subframe_times`, which spaces them in proportion to the exposure).
+    camera = FrameCamera(preset("mv_global_shutter"), (H, W), seed=0)
+    frame = camera.expose(luminance, t_end_s=0.1)   # cd/m^2 (H, W[, 3]), or sub-frames
+    frame.image, frame.raw, frame.exposure_s, frame.gain_db   # uint8, uint16 DN, the AE's
+    camera.snr(luminance, exposure_s)                # analytic EMVA 1288 SNR
 
-Physics chain (units in brackets)
----------------------------------
-1. Sensor-plane illuminance from scene luminance L [cd/m^2], object far away and on the
-   optical axis (the cos^4 fall-off towards the corners is ignored):
-       E_s [lux] = pi * L * T_lens / (4 * N^2)          N: f-number, T_lens: transmission
-2. Photons per pixel and second, light taken as monochromatic 555 nm, where
-   1 lux = 1/683 W/m^2 and a photon carries h c / 555 nm:
-       Phi [photons/s] = E_s * P * pitch^2,   P = 555 nm / (683 lm/W * h * c)
-                                                ~ 4.09e15 photons / (s m^2 lux)
-3. Electrons in an exposure t [s], pixel (i, j):
-       mu_e [e-] = QE * Phi * t * (1 + PRNU_ij) + I_dark [e-/s] * t
-       e    [e-] = Poisson(mu_e) + DSNU_ij + N(0, sigma_read^2),  clipped at the full well
-   PRNU_ij (a fraction) and DSNU_ij (e-) are Gaussian fixed patterns drawn once per camera
-   from its seed; shot noise covers light and dark current. The full-well clip acts on
-   the pixel's output (charge and read noise together): EMVA's saturation capacity is
-   where that output stops rising, so a saturated pixel reads the top code at 0 dB
-   instead of scattering by the read noise below it.
-4. Read noise sigma_read [e- rms], Gaussian (in step 3).
-5. Gain and ADC (b bits, black level B [DN]):
-       K0 [DN/e-] = (2^b - 1 - B) / full_well       (at 0 dB the ADC range holds the well)
-       K  [DN/e-] = K0 * 10^(gain_db / 20)
-       DN = clip(round(K * e + B), 0, 2^b - 1)       uint16
-6. Tone: s = clip((DN - B) / (2^b - 1 - B), 0, 1); image = round(255 * f(s)), uint8, with
-   f the sRGB OETF ("srgb"), s^(1/2.2) ("gamma") or s ("linear").
-7. Auto exposure with a real camera's lag: metering m = mean of s over the frame ("mean")
-   or its central half in each direction ("centre"); clipped pixels count, so an all-white
-   frame still drives exposure down. The product P = exposure * gain (linear) for frame
-   n + ae_lag_frames is P_n * f_n, with
-       f_n = clip((ae_target / m)^ae_damping, 1/8, 8),  f_n = 1/8 when m >= 0.95
-   (a clipped frame hides how much too bright it is). P is spent on exposure first, up to
-   min(exposure_max_s, 1 / frame_rate_hz), then on gain up to gain_db_max; downwards the
-   exposure falls to exposure_min_s at 0 dB. Manual exposures leave the loop alone.
-8. Timing: a frame exposes over [t_end - t, t_end] and is available at t_end + readout_s
-   (readout and transfer). frame_rate_hz is the sensor's top rate; callers running slower
-   cap it themselves (the AE exposure cap follows it).
-9. Global shutter: every pixel integrates over the same interval. Rolling shutter is not
-   modelled, nor vignetting, lens blur, spectral response (one 555 nm equivalent), blooming,
-   nonlinearity, defect pixels or the temperature dependence of dark current.
-
-Analytic SNR (EMVA 1288, temporal noise only, PRNU excluded; it does not saturate to 0
-above the full well, callers keep mu_e below it):
-    SNR = mu_e / sqrt(mu_e + I_dark t + sigma_read^2 + sigma_q^2 / K^2),  sigma_q^2 = 1/12 DN^2
-(without shot noise the mu_e and I_dark t terms drop out). Dynamic range of the preset:
-20 log10(full_well / sigma_read) = 20 log10(10000 / 2.3) ~ 72.8 dB.
-
-Preset "mv_global_shutter": a 3.45 um Sony Pregius global-shutter machine-vision camera
-(IMX273 / IMX264 class). Rounded public figures and their sources:
-- pixel pitch 3.45 um, 12-bit ADC, global shutter, shortest exposure ~19 us (here 20 us):
-  Teledyne FLIR's Blackfly S "Specifications and Frame Rates" page for the BFS-U3-32S4
-  (Sony IMX252, the same 3.45 um Pregius pixel as the IMX273); the 3.45 um pitch of the
-  IMX273 itself is listed in several public camera-support tables.
-- temporal dark (read) noise 2.3 e-: the sensor file of a public optical-design tool
-  (github gidobot/UWOpticalSystemsDesignTools, cfg/sensors/imx264C.json: 2.30 e- for the
-  IMX264; imx250C.json: 2.38 e- for the IMX250).
-- quantum efficiency 0.68 (monochrome, 525-555 nm), saturation capacity 10,000 e-, dark
-  current 3 e-/s, PRNU 0.5 %, DSNU 1 e-: typical of the class (the vendors' EMVA 1288
-  sheets for these sensors were not reachable here). The colour IMX264 file above peaks
-  at 0.57 in its green channel, consistent with a ~0.65-0.7 monochrome QE.
-- frame rate 226 fps at full 1440 x 1080 resolution: typical of the class (IMX273 cameras
-  are sold as e.g. Basler's acA1440-220, a name that carries ~220 fps).
-- lens f/2.0 with transmission 0.9, gain up to 24 dB, exposure 20 us to 0.1 s, readout
-  5 ms, black level 64 DN (so dark noise is not clipped at the top gain): choices of this
-  project, not sensor figures.
+Pure numpy. Luminance -> sensor-plane illuminance (lens) -> photons (555 nm equivalent)
+-> electrons (QE, PRNU, dark current, shot noise, DSNU, read noise, full-well clip) -> DN
+(gain, ADC, black level) -> an 8-bit image (tone curve); an auto exposure with a real
+camera's lag; a global shutter. Blur comes from the caller's sub-frames over the exposure
+(`subframe_times`). The model step by step, the analytic SNR, and the preset
+"mv_global_shutter" (a 3.45 um Sony Pregius IMX273 / IMX264 class camera) with every
+figure's source: docs/sensors.md, "The camera model in full".
 """
 from __future__ import annotations
 
@@ -328,8 +269,9 @@ class FrameCamera:
         return np.asarray(luminance, np.float64) * electrons_per_s_per_cd_m2(self.params)
 
     def snr(self, luminance, exposure_s: float, gain_db: float = 0.0):
-        """Analytic EMVA 1288 SNR of a pixel at `luminance` (cd/m^2, scalar or array); see
-        the module docstring. It does not drop to 0 above the full well."""
+        """Analytic EMVA 1288 SNR of a pixel at `luminance` (cd/m^2, scalar or array);
+        docs/sensors.md, "The camera model in full". It does not drop to 0 above the full
+        well."""
         mu_e = self.electrons_per_s(luminance) * exposure_s
         shot = mu_e if self.params.shot_noise else 0.0
         return mu_e / np.sqrt(shot + _noise_floor_e2(self.params, exposure_s, gain_db))

@@ -1,17 +1,13 @@
 """EMVA 1288 photon-transfer analysis, and the flat fields to feed it from a FrameCamera.
 
-Per light level, from a pair of flat fields a, b (raw DN, N pixels each):
-    mu_y      = (mean(a) + mean(b)) / 2
-    sigma_y^2 = var(a - b) / 2          (the difference cancels PRNU and DSNU)
-EMVA's linear model, in DN:
-    sigma_y^2 = K^2 sigma_d^2 + sigma_q^2 + K (mu_y - mu_y.dark),   sigma_q^2 = 1/12 DN^2
-so sigma_y^2 - sigma_y.dark^2 against mu_y - mu_y.dark is a line through the origin of
-slope K (DN/e-), fitted by least squares on the levels up to 70 % of saturation, the
-saturation point being where the variance peaks (EMVA's rule: clipping bends the curve
-before it). The temporal dark noise follows from the dark pair:
-    sigma_d [e-] = sqrt(sigma_y.dark^2 - 1/12) / K
-One dark pair serves every level, so the levels must share one exposure time (as
-`flat_field_series` makes them: it varies the light, not the exposure).
+    pairs, dark = flat_field_series(preset("mv_global_shutter"), np.linspace(0.02, 0.98, 20))
+    fit = photon_transfer(pairs, dark)      # gain_dn_per_e K, read_noise_e sigma_d, ...
+
+Per level, the mean and half the variance of a pair's difference (which cancels PRNU and
+DSNU); the variance above dark against the mean above dark is a line of slope K (DN/e-),
+fitted up to 70 % of saturation (where the variance peaks); sigma_d follows from the dark
+pair. One dark pair serves every level, so the levels share one exposure (the light
+varies). The formulas: docs/sensors.md, "Photon transfer".
 """
 from __future__ import annotations
 

@@ -8,22 +8,13 @@
     rig.ahead(history, pose, data, "front", t_next_end)        # as states arrive (optional)
     frame = rig.frame(history, pose, data, "front", t_end)    # the frame camera's image
 
-The event sensor reads the scene's luminance (cd/m^2, float32) at every luma sample: one
-render of the radiance renderer (sebvs.sim.radiance, >= 100 dB in one image).
-
-The frame camera integrates its exposure: for an exposure T ending at t_end it renders
-sub-frames at `subframe_times` (one per `subframe_s` of exposure, at most
-`max_subframes`), at poses interpolated from the sim's states (sebvs.sim.poses). Each
-sub-frame is linear RGB = luminance x chroma, chroma = the unshaded surface colour
-(FrameRenderer.albedo) over its luminance, exact for white light; the camera model
-(sebvs.sensors.framecam) turns their mean into electrons, noise, DN and an 8-bit image,
-and runs its auto exposure. The frame a control tick gets is the one whose readout has
-finished by then: its exposure ends readout_s earlier, so a frame camera's latency is in
-the image even on the lockstep clock.
-
-A sub-frame's pose is fixed once a state later than it has arrived, so `ahead` renders the
-next frame's sub-frames as the states come (and exposes it, if all are in) rather than all
-at its tick: the same frame bit for bit, with less of its work on the tick's path.
+The event sensor reads the radiance render's luminance (cd/m^2, float32, >= 100 dB in one
+image) at every luma sample. The frame camera integrates sub-frames over its exposure
+(one per `subframe_s`, at most `max_subframes`) at poses interpolated from the sim's
+states, each linear RGB = luminance x the surface's unshaded colour over its luminance;
+its exposure ends readout_s before the tick that gets it. `ahead` renders the next frame's
+sub-frames as the states that fix their poses arrive: the same frame bit for bit, less of
+its work on the tick's path. docs/sensors.md, section 3.
 """
 from __future__ import annotations
 

@@ -1,24 +1,16 @@
 """Validation of the sensor models against their fields' standards, as measurements.
 
-Each function builds what it measures (a scene, a flat field, an episode), runs the real
-code path (radiance renderer, frame camera, event emulator) and returns figures;
-tools/bench/bench_sensors.py prints them as JSON and tests/test_sensors_validate.py checks
-them at small sizes.
+    validate.radiance_range()["dynamic_range_db"]         # the radiance render's range
+    validate.photon_transfer_errors(preset("mv_global_shutter"))   # EMVA 1288 K, sigma_d
+    validate.blur_length(speed_px_s=2000.0, exposure_s=0.01)       # smear against v T
+    validate.sensor_cell("nav", {"lighting": "hdr"}, seed=0)       # one benchmark cell
 
-  radiance_range      the radiance render's range: patches from albedo 1 to 1e-9 under a
-                      uniform light, decoded against their true luminance
-  photon_transfer_errors  EMVA 1288 photon transfer on simulated flat fields: conversion
-                      gain and read noise recovered against the configured ones
-  snr_curve           the frame camera's SNR against scene illuminance, and where SNR = 1
-  blur_length         a bar moving at v px/s rendered through the whole rig (state
-                      interpolation, sub-frames, integration) under exposure T: its smear
-                      against v * T, from the profile's second moment
-  step_range          a 10^4 : 1 luminance step of striped panels panning slowly: per
-                      side, the frame camera's lost pixels (clipped, or below SNR 1) and
-                      the share of stripe edges the event sensor fires on per 0.1 s
-  nav_cell            a nav episode driven by the privileged expert, per control tick the
-                      modelled frame's detection and the events' coverage of the target's
-                      edges
+Each function builds what it measures (a scene, a flat field, an episode), runs the real
+code path (radiance renderer, frame camera, event emulator) and returns figures: also
+snr_curve (SNR against illuminance), step_range (a 10^4 : 1 step: lost frame pixels and
+event edge coverage per side), nav_cell and arm_cell. tools/bench/bench_sensors.py prints
+them as JSON (docs/sensors.md's tables); tests/test_sensors_radiance.py checks them at
+small sizes. The event sensor runs preset version 1, the documented figures' (issue 67).
 """
 from __future__ import annotations
 
@@ -194,11 +186,12 @@ def blur_length(speed_px_s: float = 2000.0, exposure_s: float = 0.01, size: int 
 
 # ----------------------------------------------------------------------- dynamic range
 def step_range(ratio_lux: float = 1e4, size: int = 96, seconds: float = 0.6,
-               dvs_hz: float = 500.0, seed: int = 0) -> dict:
+               dvs_hz: float = 500.0, seed: int = 0, event_preset_version: int = 1) -> dict:
     """Two striped panels, the right one self-luminous at `ratio_lux` x the left one's
     luminance, panning slowly under the camera. After the frame camera's auto exposure
     settles: per side, its lost pixels (top code, or SNR < 1 at their luminance), and
-    the share of stripe edges the event sensor fires on per 0.1 s."""
+    the share of stripe edges the event sensor fires on per 0.1 s (the physical preset
+    at `event_preset_version`, 1 as the documented figures: `_event_sensor`)."""
     fovy = 60.0
     f = 0.5 * size / math.tan(math.radians(fovy) / 2)
     half_w = size / f                                         # half the view at 2 m, m
@@ -217,7 +210,7 @@ def step_range(ratio_lux: float = 1e4, size: int = 96, seconds: float = 0.6,
     # the lit side: a white texel renders at ~1 x 0.8 x unit under the directional light
     photometry = Photometry(illuminance_lux=lux, emissive={"bright": ratio_lux * lux / math.pi})
     speed_m_s = 40.0 / f                                       # 40 px/s
-    emulator = EventEmulator(dvs_preset("physical", downsample=1.0, blur=False, seed=seed))
+    emulator = _event_sensor("physical", seed, event_preset_version, blur=False)
     frame_params = camera_preset("mv_global_shutter")
     out = {}
     with FrameRenderer(model, size, size) as colour:
@@ -310,7 +303,8 @@ def _above_noise(coverage: list[tuple[float, float]]) -> float:
 def sensor_cell(task: str, config: dict, seed: int = 0, episode_s: float = 6.0,
                 control_hz: float = 10.0, dvs_hz: float = 100.0, physics_hz: float = 1000.0,
                 size: int = 160, frame_camera: str = "mv_global_shutter",
-                event_preset: str = "physical", frame_rate_hz: float | None = None) -> dict:
+                event_preset: str = "physical", frame_rate_hz: float | None = None,
+                event_preset_version: int = 1) -> dict:
     """One episode of `task` ("nav" or "arm") under scene `config`, seen by both modelled
     sensors. Nav is driven by its expert on the ideal render (the expert's privileged
     view); the arm holds its home pose over the belt, as it does until its grasp, so
@@ -327,135 +321,196 @@ def sensor_cell(task: str, config: dict, seed: int = 0, episode_s: float = 6.0,
     sensor. Ticks of the first second (auto exposure settling) and ticks where the
     target shows fewer than 9 pixels are not scored. The camera runs at
     `frame_rate_hz` (default the control rate, as the camera actor), its exposure capped
-    at one frame period."""
-    from ..experts.detector import ColorDetector
-    from ..experts.nav import NavExpert, NavExpertConfig
-    from ..metrics import nav_episode_metrics
-    from ..sim import make_scene
-
+    at one frame period. The event sensor runs `event_preset` at `event_preset_version`:
+    1 by default, the noise model docs/sensors.md's figures were measured with (see
+    `_event_sensor`)."""
     if task not in ("nav", "arm"):
         raise ValueError(f"sensor_cell: task must be nav or arm, got {task!r}")
-    cfg = {"width": size, "height": size, **config, "timestep": 1.0 / physics_hz,
-           "integrator": "discrete"}
-    scene = make_scene(task, **cfg)
-    model = scene.compile()
-    data = mujoco.MjData(model)
-    scene.reset(model, data, np.random.default_rng(seed))
-    cam_name = scene.cameras[0]
-    expert = NavExpert(NavExpertConfig()) if task == "nav" else None
-    if expert is not None:
-        expert.reset()
-    chip = dvs_preset(event_preset, downsample=1.0, seed=seed)
-    emulator = EventEmulator(chip)
-    reference = EventEmulator(dvs_preset("clean", downsample=1.0, seed=seed,
-                                         reference_cd_m2=chip.reference_cd_m2))
-    params = camera_preset(frame_camera)
-    steps_render = int(round(physics_hz / dvs_hz))
-    steps_control = int(round(physics_hz / control_hz))
-    n_steps = int(round(episode_s * physics_hz))
-    history = StateHistory(params.exposure_max_s + params.readout_s + 0.05)
-    ideal = np.empty((size, size, 3), np.uint8)
-    hits, lost, coverage, coverage_ideal, truths, exposures = [], [], [], [], [], []
-    expert_hits = []
-    window: list[np.ndarray] = []
-    window_ideal: list[np.ndarray] = []
-
-    def pose(state):
-        scene.set_state(model, data, state)
-        scene.kinematics(model, data)
-
-    def target_of(truth) -> tuple[int, tuple]:
-        """(geom id, colour) of the target, or (-1, ()) when there is none."""
-        if task == "nav":
-            return model.geom("target").id, tuple(model.geom_rgba[model.geom("target").id, :3])
-        k = truth["target"]
-        return (int(scene.cube_geom[k]), tuple(truth["cubes"][k]["rgb"])) if k >= 0 else (-1, ())
-
-    def found(det, mask) -> bool:
-        if det is None:
-            return False
-        rows, cols = np.nonzero(mask)
-        return bool(cols.min() - 2 <= det.centroid[0] <= cols.max() + 3
-                    and rows.min() - 2 <= det.centroid[1] <= rows.max() + 3)
-
-    command = scene.idle_command()
-    with FrameRenderer(model, size, size) as colour:
-        rig = SensorRig(colour, scene.photometry(), params, frame_rate_hz or control_hz)
+    cell = _CellEpisode(task, config, seed, size, physics_hz, frame_camera, event_preset,
+                        event_preset_version)
+    with FrameRenderer(cell.model, size, size) as colour:
+        rig = SensorRig(colour, cell.scene.photometry(), cell.params,
+                        frame_rate_hz or control_hz)
         rig.new_episode(seed)
         try:
-            for step in range(n_steps + 1):
-                if step % steps_render == 0:
-                    t = data.time
-                    state = scene.state(data)
-                    history.add(t, state)
-                    scene.kinematics(model, data)
-                    lum = rig.luminance(data, cam_name, getattr(scene, "light_scale", 1.0))
-                    window.append(emulator.step_luminance(lum, round(t * 1e9)))
-                    window_ideal.append(reference.step_luminance(lum, round(t * 1e9)))
-                if step % steps_control == 0:
-                    flat = ~cv2.dilate(_edges(lum, 0.05).astype(np.uint8),
-                                       np.ones((9, 9), np.uint8)).astype(bool)
-                    truth = scene.truth(model, data)
-                    colour.update(data, cam_name)
-                    colour.rgb(ideal)
-                    seg = colour.segmentation()
-                    geom, rgb = target_of(truth)
-                    target = (seg[..., 0] == geom) & (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
-                    detector = ColorDetector(rgb=rgb) if geom >= 0 else None
-                    if expert is not None:
-                        command = expert.act(detector.detect(ideal), (size, size),
-                                             1.0 / control_hz)
-                    scored = t >= 1.0 and geom >= 0 and target.sum() >= 9
-                    if scored:
-                        edges = mask_edges(target)
-                        background = ~cv2.dilate(target.astype(np.uint8),
-                                                 np.ones((15, 15), np.uint8)).astype(bool) & flat
-                        coverage.append(edge_coverage(window, edges, background))
-                        coverage_ideal.append(edge_coverage(window_ideal, edges, background))
-                    window, window_ideal = [], []
-                    frame = rig.frame(history, pose, data, cam_name, t - rig.readout_s,
-                                      lambda s: float(s["light"][0]) if "light" in s else 1.0)
-                    pose(state)
-                    if scored:
-                        hits.append(found(detector.detect(frame.image), target))
-                        expert_hits.append(found(detector.detect(ideal), target))
-                        snr = rig.camera.snr(rig.mean_luminance, frame.exposure_s,
-                                             frame.gain_db)
-                        bad = (frame.raw >= params.max_dn).any(axis=-1) | (snr < 1.0)
-                        lost.append(float(bad[target].mean()))
-                        exposures.append((frame.exposure_s, frame.gain_db))
-                    truths.append(truth)
-                    scene.apply_command(model, data, command)
-                if step < n_steps:
-                    scene.scripted(model, data)
-                    mujoco.mj_step(model, data)
+            cell.play(colour, rig, episode_s, dvs_hz, control_hz)
         finally:
             rig.close()
-    expert_rate = float(np.mean(expert_hits)) if expert_hits else float("nan")
-    if task == "nav":
-        cents = np.array([t["centroid"] for t in truths], np.float64)
-        widths = np.array([t["bbox"][2] - t["bbox"][0] for t in truths], np.float64)
-        vis = np.array([t["visible"] for t in truths], bool)
-        expert_rate = nav_episode_metrics(cents, widths, vis, (size, size),
-                                          len(truths) / control_hz).as_dict()["success"]
-    exp = np.array(exposures) if exposures else np.zeros((0, 2))
-    photometry = scene.photometry()
+    return cell.figures(control_hz)
 
-    def mean(xs):
-        return float(np.mean(xs)) if xs else float("nan")
-    return {"task": task, "config": config, "seed": seed, "scored_ticks": len(hits),
-            "detector_hit_rate": mean(hits),
-            "target_lost_fraction": mean(lost),
-            "event_edge_coverage": _above_noise(coverage),
-            "event_edge_coverage_raw": mean([c[0] for c in coverage]),
-            "event_background_coverage": mean([c[1] for c in coverage]),
-            "event_edge_coverage_ideal": _above_noise(coverage_ideal),
-            # nav: the expert's paper rate; arm (home pose): the detector on the ideal view
-            "expert_reference": expert_rate,
-            "exposure_s_median": float(np.median(exp[:, 0])) if len(exp) else float("nan"),
-            "gain_db_median": float(np.median(exp[:, 1])) if len(exp) else float("nan"),
-            "photometry": {"illuminance_lux": photometry.illuminance_lux,
-                           "peak_cd_m2": photometry.peak_cd_m2()}}
+
+def _event_sensor(name: str, seed: int, preset_version: int, **overrides) -> EventEmulator:
+    """An emulator of preset `name` on 1:1 pixels. The preset version is pinned, not the
+    default: docs/sensors.md's event figures (sections 5 and the step) and
+    tools/bench/bench_sensors.py's cells were measured on version 1, and version 2 (issue
+    67) halves the physical preset's shot noise, which moves the "noise alone" column and
+    the coverage beyond it."""
+    return EventEmulator(dvs_preset(name, downsample=1.0, seed=seed,
+                                    preset_version=preset_version, **overrides))
+
+
+class _CellEpisode:
+    """One episode of `sensor_cell`: the scene, its expert and both event sensors, and the
+    per-tick scores as they accumulate."""
+
+    def __init__(self, task: str, config: dict, seed: int, size: int, physics_hz: float,
+                 frame_camera: str, event_preset: str, event_preset_version: int):
+        from ..experts.nav import NavExpert, NavExpertConfig
+        from ..sim import make_scene
+        self.task, self.config, self.seed, self.size = task, config, seed, size
+        self.physics_hz = physics_hz
+        cfg = {"width": size, "height": size, **config, "timestep": 1.0 / physics_hz,
+               "integrator": "discrete"}
+        self.scene = make_scene(task, **cfg)
+        self.model = self.scene.compile()
+        self.data = mujoco.MjData(self.model)
+        self.scene.reset(self.model, self.data, np.random.default_rng(seed))
+        self.cam_name = self.scene.cameras[0]
+        self.expert = NavExpert(NavExpertConfig()) if task == "nav" else None
+        if self.expert is not None:
+            self.expert.reset()
+        self.emulator = _event_sensor(event_preset, seed, event_preset_version)
+        # the ideal pixel on the same log range: what the scene's motion gives any sensor
+        self.reference = _event_sensor("clean", seed, event_preset_version,
+                                       reference_cd_m2=self.emulator.params.reference_cd_m2)
+        self.params = camera_preset(frame_camera)
+        self.history = StateHistory(self.params.exposure_max_s + self.params.readout_s + 0.05)
+        self.ideal = np.empty((size, size, 3), np.uint8)
+        self.hits, self.lost, self.coverage, self.coverage_ideal = [], [], [], []
+        self.truths, self.exposures, self.expert_hits = [], [], []
+        self.window: list[np.ndarray] = []          # the tick's event packets
+        self.window_ideal: list[np.ndarray] = []
+        self.t, self.state, self.lum = 0.0, None, None    # the last light sample's
+        self.command = self.scene.idle_command()
+
+    def pose(self, state: dict) -> None:
+        self.scene.set_state(self.model, self.data, state)
+        self.scene.kinematics(self.model, self.data)
+
+    def play(self, colour: FrameRenderer, rig: SensorRig, episode_s: float, dvs_hz: float,
+             control_hz: float) -> None:
+        """Step the physics for `episode_s`: the light sampled at `dvs_hz` into both event
+        sensors, and at `control_hz` a scored tick and the command it leads to."""
+        steps_render = int(round(self.physics_hz / dvs_hz))
+        steps_control = int(round(self.physics_hz / control_hz))
+        n_steps = int(round(episode_s * self.physics_hz))
+        for step in range(n_steps + 1):
+            if step % steps_render == 0:
+                self._sample_light(rig)
+            if step % steps_control == 0:
+                self._control_tick(colour, rig, control_hz)
+            if step < n_steps:
+                self.scene.scripted(self.model, self.data)
+                mujoco.mj_step(self.model, self.data)
+
+    def _sample_light(self, rig: SensorRig) -> None:
+        """The scene's luminance now, into both event sensors' windows."""
+        self.t = t = self.data.time
+        self.state = self.scene.state(self.data)
+        self.history.add(t, self.state)
+        self.scene.kinematics(self.model, self.data)
+        self.lum = rig.luminance(self.data, self.cam_name,
+                                 getattr(self.scene, "light_scale", 1.0))
+        self.window.append(self.emulator.step_luminance(self.lum, round(t * 1e9)))
+        self.window_ideal.append(self.reference.step_luminance(self.lum, round(t * 1e9)))
+
+    def _control_tick(self, colour: FrameRenderer, rig: SensorRig, control_hz: float) -> None:
+        """A control tick: the expert's command from the ideal render, the tick's events
+        scored on the target's edges, the modelled frame exposed and scored."""
+        from ..experts.detector import ColorDetector
+        size = self.size
+        flat = ~cv2.dilate(_edges(self.lum, 0.05).astype(np.uint8),
+                           np.ones((9, 9), np.uint8)).astype(bool)
+        truth = self.scene.truth(self.model, self.data)
+        colour.update(self.data, self.cam_name)
+        colour.rgb(self.ideal)
+        geom, target, rgb = self._target(colour, truth)
+        detector = ColorDetector(rgb=rgb) if geom >= 0 else None
+        if self.expert is not None:
+            self.command = self.expert.act(detector.detect(self.ideal), (size, size),
+                                           1.0 / control_hz)
+        scored = self.t >= 1.0 and geom >= 0 and target.sum() >= 9
+        if scored:
+            edges = mask_edges(target)
+            background = ~cv2.dilate(target.astype(np.uint8),
+                                     np.ones((15, 15), np.uint8)).astype(bool) & flat
+            self.coverage.append(edge_coverage(self.window, edges, background))
+            self.coverage_ideal.append(edge_coverage(self.window_ideal, edges, background))
+        self.window, self.window_ideal = [], []
+        frame = rig.frame(self.history, self.pose, self.data, self.cam_name,
+                          self.t - rig.readout_s,
+                          lambda s: float(s["light"][0]) if "light" in s else 1.0)
+        self.pose(self.state)
+        if scored:
+            self._score_frame(rig, frame, detector, target)
+        self.truths.append(truth)
+        self.scene.apply_command(self.model, self.data, self.command)
+
+    def _target(self, colour: FrameRenderer, truth: dict) -> tuple[int, np.ndarray, tuple]:
+        """(the target's geom id, its pixels in the ideal render, its colour); geom -1 and
+        colour () when there is none (nav: the cube; arm: the truth's target cube)."""
+        seg = colour.segmentation()
+        if self.task == "nav":
+            geom = self.model.geom("target").id
+            rgb = tuple(self.model.geom_rgba[geom, :3])
+        else:
+            k = truth["target"]
+            geom, rgb = ((int(self.scene.cube_geom[k]), tuple(truth["cubes"][k]["rgb"]))
+                         if k >= 0 else (-1, ()))
+        target = (seg[..., 0] == geom) & (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+        return geom, target, rgb
+
+    def _score_frame(self, rig: SensorRig, frame, detector, target: np.ndarray) -> None:
+        """The modelled frame's scores: the detector's hit (and the expert's on the ideal
+        render), the share of target pixels lost, the exposure."""
+        self.hits.append(_found(detector.detect(frame.image), target))
+        self.expert_hits.append(_found(detector.detect(self.ideal), target))
+        snr = rig.camera.snr(rig.mean_luminance, frame.exposure_s, frame.gain_db)
+        bad = (frame.raw >= self.params.max_dn).any(axis=-1) | (snr < 1.0)
+        self.lost.append(float(bad[target].mean()))
+        self.exposures.append((frame.exposure_s, frame.gain_db))
+
+    def figures(self, control_hz: float) -> dict:
+        """The episode's means: what `sensor_cell` returns."""
+        from ..metrics import nav_episode_metrics
+        size = self.size
+        expert_rate = float(np.mean(self.expert_hits)) if self.expert_hits else float("nan")
+        if self.task == "nav":
+            cents = np.array([t["centroid"] for t in self.truths], np.float64)
+            widths = np.array([t["bbox"][2] - t["bbox"][0] for t in self.truths], np.float64)
+            vis = np.array([t["visible"] for t in self.truths], bool)
+            expert_rate = nav_episode_metrics(cents, widths, vis, (size, size),
+                                              len(self.truths) / control_hz
+                                              ).as_dict()["success"]
+        exp = np.array(self.exposures) if self.exposures else np.zeros((0, 2))
+        photometry = self.scene.photometry()
+        coverage = self.coverage
+
+        def mean(xs):
+            return float(np.mean(xs)) if xs else float("nan")
+        return {"task": self.task, "config": self.config, "seed": self.seed,
+                "scored_ticks": len(self.hits),
+                "detector_hit_rate": mean(self.hits),
+                "target_lost_fraction": mean(self.lost),
+                "event_edge_coverage": _above_noise(coverage),
+                "event_edge_coverage_raw": mean([c[0] for c in coverage]),
+                "event_background_coverage": mean([c[1] for c in coverage]),
+                "event_edge_coverage_ideal": _above_noise(self.coverage_ideal),
+                # nav: the expert's paper rate; arm (home pose): the detector on the ideal view
+                "expert_reference": expert_rate,
+                "exposure_s_median": float(np.median(exp[:, 0])) if len(exp) else float("nan"),
+                "gain_db_median": float(np.median(exp[:, 1])) if len(exp) else float("nan"),
+                "photometry": {"illuminance_lux": photometry.illuminance_lux,
+                               "peak_cd_m2": photometry.peak_cd_m2()}}
+
+
+def _found(det, mask: np.ndarray) -> bool:
+    """Whether a detection's centroid lies in the mask's box (2 px margin)."""
+    if det is None:
+        return False
+    rows, cols = np.nonzero(mask)
+    return bool(cols.min() - 2 <= det.centroid[0] <= cols.max() + 3
+                and rows.min() - 2 <= det.centroid[1] <= rows.max() + 3)
 
 
 def nav_cell(config: dict, **kw) -> dict:
