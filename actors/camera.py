@@ -64,6 +64,10 @@ class Camera(Actor):
         max_subframes: Annotated[int, Range(ge=1, le=256)] = 8    # ...at most this many
                                    # (an edge moving more than its width in 1/8 of the
                                    # exposure then ghosts instead of smearing)
+        # the frame camera's light: "shared", the event sensor's luma samples integrated
+        # over each exposure (no sub-frames of its own; where no luma is consumed it falls
+        # back to them), or "subframes", its own renders every subframe_s (before issue 64)
+        frame_light: Literal["shared", "subframes"] = "shared"
         radiance_ratio: Annotated[float, Range(gt=1, le=64)] = 16.0
                                    # exposure ratio between the radiance render's channels
         # luma times: "fixed" at dvs_hz; "adaptive" when the brightness could have changed

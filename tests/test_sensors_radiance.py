@@ -241,7 +241,8 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
 
     def frames():
         core = CameraCore(Camera.Params(sensor="physical", dvs_hz=states_hz,
-                                        frame_overrides=held), {"rgb", "luma"})
+                                        frame_overrides=held, frame_light="subframes"),
+                          {"rgb", "luma"})
         out, tick_work = [], []
         for arrays, meta, *_ in states:
             before = core.rig.subframes_rendered if core.rig else 0
@@ -277,7 +278,8 @@ def test_a_bad_next_tick_time_costs_the_rendering_ahead_not_the_frames():
     states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64, "height": 64})
 
     def frames(t_next):
-        core = CameraCore(Camera.Params(sensor="physical", dvs_hz=100.0), {"rgb", "luma"})
+        core = CameraCore(Camera.Params(sensor="physical", dvs_hz=100.0,
+                                        frame_light="subframes"), {"rgb", "luma"})
         out = []
         for arrays, meta, *_ in states:
             if "t_next_control" in meta:
@@ -328,3 +330,67 @@ def test_the_cells_measure_the_event_sensor_their_documented_figures_were_measur
     for key in ("event_edge_coverage", "event_background_coverage",
                 "event_edge_coverage_ideal", "detector_hit_rate", "exposure_s_median"):
         assert r[key] == committed[key], key
+
+
+def test_shared_light_frames_exposed_ahead_are_the_frames_of_the_tick(monkeypatch):
+    """On the event sensor's light samples (frame_light "shared", the default) the next
+    frame is exposed at the first luma sample past its exposure's end, before its tick,
+    and renders no sub-frames: the same frames and meta as exposing it at the tick."""
+    from sebvs_actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    from sebvs.sensors.rig import SensorRig
+    states = sim_states({"variant": "indoor", "lighting": "dusk", "width": 64,
+                         "height": 64}, dvs_hz=200.0)
+
+    def frames():
+        core = CameraCore(Camera.Params(sensor="physical", dvs_hz=200.0), {"rgb", "luma"})
+        assert core.shared_light
+        out = [(a["rgb"].copy(), m) for arrays, meta, *_ in states
+               for o, a, m in core.sample(arrays, meta) if o == "rgb"]
+        counts = dict(core.counts)
+        core.close()
+        return out, counts
+
+    ahead, counts = frames()
+    monkeypatch.setattr(SensorRig, "ahead_shared", lambda self, *a, **k: False)
+    at_tick, counts_at_tick = frames()
+    assert len(ahead) == len(at_tick) == 4
+    for (a, m), (b, n) in zip(ahead, at_tick):
+        assert np.array_equal(a, b) and m == n
+    assert counts["subframes"] == counts_at_tick["subframes"] == 0
+    assert counts["frames_ahead"] == 3 and counts_at_tick["frames_ahead"] == 0
+
+
+def test_an_rgb_only_camera_keeps_its_own_subframes():
+    """Shared light needs the event sensor's luma: a camera nobody takes luma from renders
+    its frames' sub-frames itself, as before."""
+    from sebvs_actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    core = CameraCore(Camera.Params(sensor="physical", dvs_hz=200.0), {"rgb"})
+    try:
+        assert not core.shared_light
+    finally:
+        core.close()
+
+
+def test_light_samples_integrate_linear_light_exactly():
+    from sebvs.sensors.light_samples import LightSamples
+    light = LightSamples(keep_s=1.0)
+    for t in (0.0, 0.005, 0.010, 0.015):
+        light.add(t, np.full((2, 3), 100.0 * t + 1.0, np.float32))   # L(t) = 1 + 100 t
+    for t0, t1 in ((0.001, 0.004), (0.002, 0.013), (0.0, 0.015), (0.0072, 0.0073)):
+        exact = 1.0 + 100.0 * 0.5 * (t0 + t1)          # the mean of a linear function
+        assert np.allclose(light.mean(t0, t1), exact, rtol=1e-6), (t0, t1)
+        assert abs(sum(w for _, w in light.weights(t0, t1)) - 1.0) < 1e-12
+    # held before the first sample and after the last
+    assert np.allclose(light.mean(-0.01, 0.0), 1.0) and np.allclose(light.mean(0.015, 0.02), 2.5)
+    assert light.inside(0.001, 0.004) == 0 and light.inside(0.0, 0.011) == 2
+    with pytest.raises(ValueError, match="ends after it starts"):
+        light.weights(0.01, 0.01)
+
+
+def test_shared_light_keeps_the_blur_length():
+    """The smear of a bar at 2000 px/s over 10 ms through the shared path (light at the
+    event sensor's 200 Hz and at 2 kHz) against v T (tools/bench/bench_sensors.py)."""
+    assert validate.blur_length(light_hz=2000.0)["blur_length_error"] < 0.02
+    assert validate.blur_length(light_hz=200.0)["blur_length_error"] < 0.10

@@ -89,6 +89,13 @@ class CameraCore:
                 floor_hz=params.luma_floor_hz, ceiling_hz=params.luma_ceiling_hz))
             self.counts["luma_between"] = 0
         self.previous: tuple[float, dict] | None = None
+        # the frame camera integrates the event sensor's light samples ("shared") where
+        # there are any, else sub-frames of its own ("subframes", the path before issue 64)
+        frame_light = getattr(params, "frame_light", "shared")
+        if frame_light not in ("shared", "subframes"):
+            raise ValueError(f"camera: frame_light must be 'shared' or 'subframes', got "
+                             f"{frame_light!r}")
+        self.shared_light = self.physical and frame_light == "shared" and "luma" in self.wanted
         if self.physical:
             from .framecam import preset
             self.frame_params = preset(params.frame_camera, **params.frame_overrides)
@@ -100,7 +107,7 @@ class CameraCore:
             # states that fix their poses arrive, not all at that tick
             self.next_t_end: float | None = None
             self.counts.update(subframes_ahead=0, subframes_discarded=0,
-                               bad_t_next_control=0)
+                               bad_t_next_control=0, light_extra=0, frames_ahead=0)
 
     def _build_rig(self, frame_rate_hz: float) -> None:
         from .rig import SensorRig
@@ -192,6 +199,12 @@ class CameraCore:
             yield self._luma_frame(state, t_ep, out_meta, alloc, sharp)
         if rgb_due:
             yield from self._privileged_frames(out_meta, alloc)
+        if want_luma and self.shared_light and not want_rgb and self.next_t_end is not None:
+            # the exposure may have ended with this sample: expose it now, ahead of its
+            # tick, which then only reads it out (after the renders above: it re-poses)
+            self.rig.ahead_shared(self.states, self.pose, self.data, self.cam,
+                                  self.next_t_end, self._light_scale)
+            self._count_subframes()
         if want_rgb and self.physical:
             # last: its sub-frames re-pose the model, which the renders above read posed
             frame = self._frame(t_ep, {**out_meta, "truth": meta.get("truth")}, alloc)
@@ -257,7 +270,7 @@ class CameraCore:
         (and the next frame's sub-frames that it fixes), and the blur history."""
         if self.physical and "rgb" in self.wanted:
             self.states.add(t_ep, state)
-            if not want_rgb and self.next_t_end is not None:
+            if not want_rgb and self.next_t_end is not None and not self.shared_light:
                 self.rig.ahead(self.states, self.pose, self.data, self.cam, self.next_t_end,
                                self._light_scale)
                 self._count_subframes()
@@ -300,6 +313,8 @@ class CameraCore:
                                      None if self.luma_renderer is not None else arrays["luma"])
             if self.luma_renderer is not None:
                 self.rig.luminance_at(lum, arrays["luma"])
+            if self.shared_light:
+                self.rig.add_light(t_ep, lum)
             self.counts["clipped_px"] += self.rig.radiance.clipped
             self.counts["luma"] += 1
             if self.sampler is not None:
@@ -348,6 +363,8 @@ class CameraCore:
                                          None if self.luma_renderer is not None else luma)
                 if self.luma_renderer is not None:
                     self.rig.luminance_at(lum, luma)
+                if self.shared_light:
+                    self.rig.add_light(ts, lum)
                 self.counts["clipped_px"] += self.rig.radiance.clipped
                 meta["units"] = "cd/m2"
                 self.sampler.observe(ts, log_luminance(luma))
@@ -386,8 +403,8 @@ class CameraCore:
         before it (sebvs.sensors.rig)."""
         t_end = t_ep - self.rig.readout_s
         arrays = alloc("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
-        frame = self.rig.frame(self.states, self.pose, self.data, self.cam, t_end,
-                               self._light_scale)
+        make = self.rig.frame_shared if self.shared_light else self.rig.frame
+        frame = make(self.states, self.pose, self.data, self.cam, t_end, self._light_scale)
         arrays["rgb"][...] = frame.image
         self._count_subframes()
         self.counts["rgb"] += 1
@@ -399,7 +416,8 @@ class CameraCore:
         rig = self.rig
         self.counts.update(subframes=rig.subframes_rendered,
                            subframes_ahead=rig.subframes_ahead,
-                           subframes_discarded=rig.subframes_discarded)
+                           subframes_discarded=rig.subframes_discarded,
+                           light_extra=rig.light_extra, frames_ahead=rig.frames_ahead)
 
     def _remember(self, state: dict) -> None:
         """Keep a copy of this state for the blur (its arrays may be views of the sender's

@@ -28,6 +28,7 @@ from ..sim.poses import StateHistory
 from ..sim.radiance import REC709, RadianceRenderer
 from ..sim.render import FrameRenderer
 from .framecam import Frame, FrameCamera, FrameCameraParams, subframe_times
+from .light_samples import LightSamples
 from ..sim.light import Photometry
 
 # below this unshaded luminance a surface's colour is unknown: taken as grey
@@ -80,6 +81,11 @@ class SensorRig:
         self.subframes_rendered = 0
         self.subframes_ahead = 0        # of those, rendered before their frame's tick
         self.subframes_discarded = 0    # rendered ahead for a frame that came otherwise
+        # the event sensor's light samples, which a shared-light frame integrates
+        # (frame_shared); the longest exposure, the readout and a margin behind the newest
+        self.light = LightSamples(self.params.exposure_max_s + self.params.readout_s + 0.05)
+        self.light_extra = 0            # samples rendered for an exposure that had none
+        self.frames_ahead = 0           # shared-light frames exposed before their tick
 
     def set_scene(self, model: mujoco.MjModel, photometry: Photometry) -> None:
         """A new model (the colour renderer already switched to it)."""
@@ -89,6 +95,7 @@ class SensorRig:
         """A fresh camera: its fixed pattern and its auto exposure from the start."""
         self.camera = FrameCamera(self.params, (self.height, self.width), seed)
         self._drop_pending()
+        self.light.clear()
 
     @property
     def readout_s(self) -> float:
@@ -195,6 +202,66 @@ class SensorRig:
         ex.mean_luminance = (mean @ REC709).astype(np.float32)
         ex.frame = self.camera.expose(mean, ex.t_end, exposure_s)
         ex.stack = None                 # the frame holds what is needed from here
+
+    # ---------------------------------------- the frame camera on the shared light samples
+    def add_light(self, t: float, luminance: np.ndarray) -> None:
+        """A light sample the event sensor read: (H, W) cd/m^2 at the rig's full size."""
+        self.light.add(t, luminance)
+
+    def frame_shared(self, history: StateHistory, pose, data: mujoco.MjData,
+                     camera: str | int, t_end: float, light_scale_of,
+                     exposure_s: float | None = None) -> Frame:
+        """The auto-exposed frame ending at `t_end`, integrated from the light samples
+        (`add_light`, sebvs.sensors.light_samples) instead of sub-frames of its own: the
+        luminance's exact mean over the exposure for light linear between samples, and
+        the surfaces' colour once, at the exposure's middle. An exposure with no sample
+        inside gets one rendered at its middle. A frame `ahead_shared` exposed for this
+        `t_end` is returned as it is. `exposure_s` as in frame(): manual, at 0 dB."""
+        if self.camera is None:
+            raise RuntimeError("sensor rig: new_episode() before the first frame")
+        if exposure_s is not None:
+            self._drop_pending()
+        ex, self._pending = self._pending_for(t_end), None
+        if ex is None or ex.frame is None:
+            ex = self._expose_shared(history, pose, data, camera, t_end, light_scale_of,
+                                     exposure_s)
+        else:
+            self.frames_ahead += 1
+        self.mean_luminance = ex.mean_luminance
+        return ex.frame
+
+    def ahead_shared(self, history: StateHistory, pose, data: mujoco.MjData,
+                     camera: str | int, t_end: float, light_scale_of) -> bool:
+        """Expose now the frame ending at `t_end` if the light samples reach its end, so
+        that its tick only reads it out; True when it was. Poses `data`."""
+        if self.camera is None or not self.light.reaches(t_end):
+            return False
+        ex = self._pending_for(t_end)
+        if ex is not None and ex.frame is not None:
+            return False
+        self._pending = self._expose_shared(history, pose, data, camera, t_end,
+                                            light_scale_of)
+        return True
+
+    def _expose_shared(self, history: StateHistory, pose, data: mujoco.MjData,
+                       camera: str | int, t_end: float, light_scale_of,
+                       manual_s: float | None = None) -> _Exposure:
+        exposure_s = self.camera.exposure_s if manual_s is None else manual_s
+        t0, t_mid = t_end - exposure_s, t_end - 0.5 * exposure_s
+        state = history.at(self.colour.model, t_mid)
+        pose(state)
+        if not self.light.inside(t0, t_end):
+            # shorter than the samples' spacing: its own sample, or a blend of two poses
+            self.add_light(t_mid, self.luminance(data, camera, light_scale_of(state)))
+            self.light_extra += 1
+        self.colour.update(data, camera)
+        self.colour.albedo(self._albedo)
+        mean = self.light.mean(t0, t_end)
+        ex = _Exposure(t_end, exposure_s, np.array([t_mid]), None, np.ones(1, bool))
+        ex.mean_luminance = mean
+        ex.frame = self.camera.expose(chroma(self._albedo) * mean[..., None], t_end,
+                                      manual_s)
+        return ex
 
     def close(self) -> None:
         self.radiance.close()

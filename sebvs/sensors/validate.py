@@ -134,11 +134,14 @@ def _strip_scene(size: int, fovy: float, extra: str, assets: str = "") -> mujoco
 
 
 def blur_length(speed_px_s: float = 2000.0, exposure_s: float = 0.01, size: int = 96,
-                subframe_s: float = 0.0005, max_subframes: int = 256, seed: int = 0) -> dict:
+                subframe_s: float = 0.0005, max_subframes: int = 256, seed: int = 0,
+                light_hz: float | None = None) -> dict:
     """A white bar on a black ground crossing the image at `speed_px_s`, exposed for
     `exposure_s` by the rig: the smear against speed x exposure. The smear is
     sqrt(12 (var_moving - var_still)) of the column profile (a box of width s convolved
-    with the bar adds s^2 / 12 to its variance)."""
+    with the bar adds s^2 / 12 to its variance). With `light_hz` the frame integrates
+    light samples at that rate (the camera's frame_light "shared": the event sensor's
+    luma), on a grid that does not line up with the exposure, instead of sub-frames."""
     fovy = 60.0
     f = 0.5 * size / math.tan(math.radians(fovy) / 2)          # px per (m / m)
     metres_per_px = 2.0 / f                                    # at the plane 2 m away
@@ -167,8 +170,17 @@ def blur_length(speed_px_s: float = 2000.0, exposure_s: float = 0.01, size: int 
                 def pose(state):
                     data.mocap_pos[:] = state["mocap_pos"]
                     mujoco.mj_forward(model, data)
-                rig.frame(history, pose, data, "cam", exposure_s, lambda s: 1.0,
-                          exposure_s=exposure_s)
+                if light_hz is None:
+                    rig.frame(history, pose, data, "cam", exposure_s, lambda s: 1.0,
+                              exposure_s=exposure_s)
+                else:
+                    # a grid a third of a period off the exposure's ends, and beyond them
+                    period = 1.0 / light_hz
+                    for t in np.arange(-period * 2 / 3, exposure_s + period, period):
+                        pose(history.at(model, float(t)))
+                        rig.add_light(float(t), rig.luminance(data, "cam", 1.0))
+                    rig.frame_shared(history, pose, data, "cam", exposure_s, lambda s: 1.0,
+                                     exposure_s=exposure_s)
                 profiles[label] = rig.mean_luminance.mean(axis=0)
         finally:
             rig.close()
@@ -521,3 +533,86 @@ def nav_cell(config: dict, **kw) -> dict:
 def arm_cell(config: dict, **kw) -> dict:
     """sensor_cell for the arm scene."""
     return sensor_cell("arm", config, **kw)
+
+
+# ----------------------------------------------------------------- one light stream
+def frame_light_agreement(task: str = "nav", config: dict | None = None,
+                          seconds: float = 3.0, dvs_hz: float = 200.0, seed: int = 0,
+                          command: tuple | None = (0.4, 1.0)) -> dict:
+    """The frame camera on the event sensor's light samples (camera frame_light "shared")
+    against its own sub-frames ("subframes"), on one episode of a scene, every control tick.
+
+    Four cameras read the same states. A noise-free pair, one on sub-frames and one on
+    shared light (no shot, read or dark noise, no fixed pattern), differ only by how the
+    light was sampled; a noisy pair on sub-frames with two seeds differs by the camera's
+    own noise and fixed pattern. "The same within the frame's noise": the first
+    difference well below the second.
+
+    Parameters:
+        task: "nav" or "arm" (its scene and camera at the default size).
+        config: scene config overrides (e.g. {"lighting": "hdr"}).
+        seconds: episode length; dvs_hz: the luma (light sample) rate.
+        seed: the episode's and the cameras' seed.
+        command: held for the whole episode (nav [v, w]: turning, the whole image moves,
+            at w_max the scene sweeps about 1 rad/s past the camera); None: none.
+
+    Returns:
+        {"ticks", "light_dn_median" and "light_dn_p99" (per tick, the noise-free pair's
+        mean and 99th percentile |difference| in DN; then the median over ticks),
+        "noise_dn_median" (the noisy pair's mean |difference|), "ratio_median" (light
+        over noise, per tick), "exposure_ratio_max" (the noise-free pair's exposures,
+        furthest from 1), "renders" (each camera's light samples and sub-frames)}.
+    """
+    from types import SimpleNamespace
+
+    from ..sim.stepper import SceneStepper
+    from .camera import CameraCore
+    sim = SceneStepper(task, dict(config or {}), control_hz=10.0, render_hz=dvs_hz,
+                       episode_s=seconds)
+    clean = {"read_noise_e": 0.0, "dsnu_e": 0.0, "prnu": 0.0, "dark_current_e_per_s": 0.0,
+             "shot_noise": False}
+
+    def camera(frame_light: str, camera_seed: int, overrides: dict) -> CameraCore:
+        params = SimpleNamespace(
+            camera="", rgb_hz=0.0, dvs_hz=dvs_hz, luma_scale=1.0, sensor="physical",
+            frame_camera="mv_global_shutter", frame_overrides=overrides, subframe_s=0.004,
+            max_subframes=8, radiance_ratio=16.0, frame_light=frame_light,
+            luma_sampling="fixed")
+        return CameraCore(params, {"rgb", "luma"}, seed=camera_seed)
+
+    cams = {"subframes": camera("subframes", seed, clean), "shared": camera("shared", seed, clean),
+            "noisy_a": camera("subframes", seed, {}), "noisy_b": camera("subframes", seed + 1, {})}
+    rows = []
+    try:
+        sim.start_episode(seed, 0)
+        if command is not None:
+            sim.apply(np.asarray(command, np.float64))
+        while True:
+            if sim.render_due:
+                state, meta = sim.scene.state(sim.data), sim.sample_meta(0)
+                frames = {}
+                for name, cam in cams.items():
+                    for output, arrays, m in cam.sample(state, meta):
+                        if output == "rgb":
+                            frames[name] = (arrays["rgb"].astype(np.int16), m["exposure_s"])
+                if len(frames) == 4:
+                    light = np.abs(frames["shared"][0] - frames["subframes"][0])
+                    noise = np.abs(frames["noisy_b"][0] - frames["noisy_a"][0])
+                    rows.append((light.mean(), np.percentile(light, 99), noise.mean(),
+                                 frames["shared"][1] / frames["subframes"][1]))
+            if sim.advance():
+                break
+        renders = {k: {"light": c.counts["luma"] + c.counts.get("light_extra", 0),
+                       "subframes": c.counts["subframes"]} for k, c in cams.items()}
+    finally:
+        for cam in cams.values():
+            cam.close()
+    light, light_p99, noise, exposure = (np.array(col, float) for col in zip(*rows))
+    return {"task": task, "config": dict(config or {}), "dvs_hz": dvs_hz, "ticks": len(rows),
+            "command": None if command is None else list(command),
+            "light_dn_median": float(np.median(light)),
+            "light_dn_p99": float(np.median(light_p99)),
+            "noise_dn_median": float(np.median(noise)),
+            "ratio_median": float(np.median(light / np.maximum(noise, 1e-9))),
+            "exposure_ratio_max": float(exposure[np.argmax(np.abs(np.log(exposure)))]),
+            "renders": renders}

@@ -32,9 +32,17 @@ event_noise: the event sensor's noise on a still uniform field of linear light, 
   (sebvs/dvs/noise.py: 128 x 128, 5 s at 100 frames a second, seed 0) beside the rate the
   model states (docs/dvs.md, "Noise and preset versions"); event_noise_worst_ratio is the
   measured over the stated rate furthest from 1 (tests/test_dvs_noise.py: within 10 %).
+frame_light (issue 64): the frame camera on the event sensor's light samples (camera
+  frame_light "shared", the default) against its own sub-frames. blur_length_error_shared:
+  the blur bar through the shared path with light at 200 Hz (<= 0.10, as the sub-frames'
+  figure); frame_light_agreement: nav episodes turning at full rate, every tick, the
+  noise-free frames' mean |difference| in DN (shared - subframes) against two noisy
+  cameras' (the frame's own noise), and the light renders each path made
+  (frame_light_ratio_max: the largest light/noise ratio of the cells, < 1 the target).
 
     tools/bench/bench_sensors.py [--quick] [--json FILE] [--plot FILE.png] [--seeds N]
     tools/bench/bench_sensors.py --noise-only [--json FILE]
+    tools/bench/bench_sensors.py --light-only [--quick] [--json FILE]
 """
 from __future__ import annotations
 
@@ -171,6 +179,28 @@ def measure_event_noise(progress) -> dict:
                        "seed": 0, "levels_cd_m2": list(noise.LEVELS_CD_M2)}}
 
 
+def measure_frame_light(progress, quick: bool) -> dict:
+    """The shared light stream's figures (module docstring, frame_light)."""
+    blur = validate.blur_length(light_hz=200.0)
+    progress(f"blur, shared light at 200 Hz: {blur['smear_px']:.2f} px against "
+             f"{blur['expected_px']:.1f}")
+    cells = [{}, {"lighting": "dusk", "target_speed": "fast"}]
+    rows = []
+    for config in cells[:1] if quick else cells:
+        for hz in (200.0,) if quick else (200.0, 100.0):
+            r = validate.frame_light_agreement("nav", config, seconds=3.0, dvs_hz=hz)
+            progress(f"frame light {config or 'nominal'} at {hz:g} Hz: shared - subframes "
+                     f"{r['light_dn_median']:.2f} DN against the noise's "
+                     f"{r['noise_dn_median']:.2f} DN; light renders "
+                     f"{r['renders']['shared']['light']} against "
+                     f"{r['renders']['subframes']['light']} + "
+                     f"{2 * r['renders']['subframes']['subframes']} (sub-frames x2)")
+            rows.append(r)
+    return {"blur_length_error_shared": round(blur["blur_length_error"], 4),
+            "frame_light_ratio_max": round(max(r["ratio_median"] for r in rows), 4),
+            "blur_shared": blur, "frame_light_agreement": rows}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawTextHelpFormatter)
@@ -181,6 +211,8 @@ def main() -> int:
     ap.add_argument("--plot", metavar="FILE", help="SNR curve, radiance decode, cells (PNG)")
     ap.add_argument("--noise-only", action="store_true",
                     help="only the event sensor's noise (event_noise; a few seconds)")
+    ap.add_argument("--light-only", action="store_true",
+                    help="only the shared light stream's figures (frame_light; minutes)")
     args = ap.parse_args()
     seeds = list(range(args.seeds or (1 if args.quick else 3)))
     variants = ("indoor",) if args.quick else ("indoor", "outdoor")
@@ -195,6 +227,14 @@ def main() -> int:
         out = {"event_noise_worst_ratio": event_noise["worst_ratio"],
                "event_noise": event_noise}
         print(json.dumps(out, indent=1))
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(out, indent=1))
+        return 0
+    if args.light_only:
+        out = measure_frame_light(progress, args.quick)
+        print(json.dumps({k: v for k, v in out.items() if k != "frame_light_agreement"},
+                         indent=1))
         if args.json:
             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
             Path(args.json).write_text(json.dumps(out, indent=1))
@@ -215,6 +255,7 @@ def main() -> int:
     step = validate.step_range()
     progress(f"step 1e4:1: {json.dumps({k: step[k] for k in ('dim', 'bright')})}")
     event_noise = measure_event_noise(progress)
+    frame_light = measure_frame_light(progress, args.quick)
     rows = run_cells(variants, seeds, episode_s, progress, flicker=not args.quick)
     means = cell_means(rows)
     hdr = [m for m in means if m["cell"] == "hdr" and m["variant"] != "arm"]
@@ -227,6 +268,7 @@ def main() -> int:
         "hdr_target_lost_fraction": min(m["target_lost_fraction"] for m in hdr),
         "hdr_event_edge_coverage": min(m["event_edge_coverage"] for m in hdr),
         "event_noise_worst_ratio": event_noise["worst_ratio"],
+        **frame_light,
         "detector_hit_rate": {f"{m['variant']}/{m['cell']}": m["detector_hit_rate"]
                               for m in means},
         "event_edge_coverage": {f"{m['variant']}/{m['cell']}": m["event_edge_coverage"]
@@ -237,13 +279,15 @@ def main() -> int:
         "event_noise": event_noise,
         "config": {"quick": args.quick, "seeds": seeds, "episode_s": episode_s,
                    "variants": list(variants), "frame_camera": "mv_global_shutter",
-                   "event_preset": "physical", "control_hz": 10.0,
+                   "event_preset": "physical", "event_preset_version": 1,
+                   "control_hz": 10.0,
                    "frame_rate_hz": "the control rate",
                    "seconds": round(time.perf_counter() - t0, 1)}}
     summary = {k: out[k] for k in ("dynamic_range_db", "ptc_gain_error", "ptc_read_noise_error",
                                    "blur_length_error", "blur_length_error_camera_defaults",
                                    "hdr_target_lost_fraction",
                                    "hdr_event_edge_coverage", "event_noise_worst_ratio",
+                                   "blur_length_error_shared", "frame_light_ratio_max",
                                    "detector_hit_rate",
                                    "event_edge_coverage")}
     print(json.dumps(summary, indent=1))
