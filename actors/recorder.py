@@ -44,7 +44,7 @@ import numpy as np
 from sebvs.data.recording import (WRITE_STOPPED, EpisodeRecorder, SpaceReserve, TickJoiner,
                                   hop_latencies)
 from sebvs.runtime import Actor, Message, Range
-from sebvs.runtime.topology import TopologyError, apply_override
+from sebvs.runtime.topology import TopologyError, apply_overrides
 
 STREAMS = ("rgb", "events", "raw", "action")
 # file attribute <- accumulator meta key (either spelling)
@@ -85,8 +85,10 @@ class Recorder(Actor):
         compression: Literal["lzf", "gzip", "none"] = "lzf"
         task: Literal["auto", "nav", "arm"] = "auto"   # auto: from the action's array name
         topology: str = ""               # topology file, stored as an attribute (sebvs record sets it)
-        # the --set overrides the run was started with (sebvs record sets them): applied to
-        # the file's content before it is stored, so the attributes say what ran
+        # the overrides the run was started with beyond the file (sebvs record sets them:
+        # the sensor pair's and a named condition's as mappings, the --set lines as typed):
+        # applied to the file's content before it is stored, so the attributes say what
+        # ran, and stored beside it as given
         overrides: list = field(default_factory=list)
         # ticks waiting for a stream before they count as lost
         max_pending: Annotated[int, Range(ge=1, le=100_000)] = 256
@@ -105,12 +107,11 @@ class Recorder(Actor):
         topo = {}
         if p.topology:
             try:
-                content = tomllib.loads(Path(p.topology).read_text())
-                for text in p.overrides:
-                    apply_override(content, str(text))
+                content = apply_overrides(tomllib.loads(Path(p.topology).read_text()),
+                                          list(p.overrides), p.topology)
                 topo = {"file": p.topology, "content": content,
-                        "overrides": [str(t) for t in p.overrides]}
-            except (OSError, tomllib.TOMLDecodeError, TopologyError) as exc:
+                        "overrides": list(p.overrides)}
+            except (OSError, tomllib.TOMLDecodeError, TopologyError, TypeError) as exc:
                 topo = {"file": p.topology, "error": str(exc)}
         base = {"topology": topo, "streams": sorted(self.streams)}
         emulator = emulator_params(topo.get("content", {}))

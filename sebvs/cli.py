@@ -97,7 +97,7 @@ def _cmd_ctl(args) -> int:
     import zmq
     from .runtime.runs import resolve_run
     from .runtime.supervisor import control_request
-    from .runtime.topology import parse_override
+    from .runtime.overrides import parse_key_value
 
     info = resolve_run(args.run)
     if args.actor not in info["actors"]:
@@ -110,11 +110,11 @@ def _cmd_ctl(args) -> int:
             return 2
         requests = []
         for text in args.args:
-            if "=" not in text or text.startswith("="):
+            parts, value = parse_key_value(text) if "=" in text else ([""], None)
+            if not all(parts):          # no "=", or an empty key: "=3", "a..b=3"
                 print(f"sebvs ctl: set expects key=value, got {text!r}", file=sys.stderr)
                 return 2
-            parts, value = parse_override(f"{args.actor}.{text}")
-            requests.append({"cmd": "set", "key": ".".join(parts[1:]), "value": value})
+            requests.append({"cmd": "set", "key": ".".join(parts), "value": value})
     elif args.command == "get":
         requests = [{"cmd": "get", "key": k} for k in args.args] or [{"cmd": "get"}]
     else:

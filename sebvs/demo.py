@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from .runtime.overrides import Overrides, as_mapping, lookup
 from .runtime.profiler import ProfileCollector, format_loop_latency, format_report
 from .runtime.supervisor import RunFailed, Supervisor
 from .runtime.topology import load_topology
@@ -60,9 +61,21 @@ def _format_arm(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_after: int,
+def run_demo(topology: str, overrides: list, swap_to: str | None, swap_after: int,
              profile_json: str | None = None, clock: str | None = None) -> int:
-    clocked = [f'topology.clock="{clock}"'] if clock else []
+    """Run the topology to its end with the profiler; print the latency and the metrics.
+
+    Parameters:
+        topology: the closed-loop topology file.
+        overrides: override layers (mappings, or --set lines as typed), after `clock`.
+        swap_to, swap_after: the modality the policy is set to after that many actions.
+        profile_json: where the profile is written as JSON, if anywhere.
+        clock: "realtime" or "lockstep"; None: the topology's.
+
+    Returns:
+        The run's exit status.
+    """
+    clocked = [{"topology": {"clock": clock}}] if clock else []
     topo = load_topology(topology, [*clocked, *overrides])
     out = Path("runs") / "demo-tracking.jsonl"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -119,23 +132,23 @@ def run_demo(topology: str, overrides: list[str], swap_to: str | None, swap_afte
     return code
 
 
-def load_for_swap(swap_to: str | None, sets: list[str]) -> list[str]:
-    """The --set line that loads the checkpoint of the modality swapped to where the policy
-    would not load it (by default it loads the paper's three), unless the user's --set
-    lines list the policy's modalities themselves; else []."""
+def load_for_swap(swap_to: str | None, sets: Overrides) -> dict:
+    """The override that loads the checkpoint of the modality swapped to where the policy
+    would not load it (by default it loads the paper's three), unless the user's overrides
+    list the policy's modalities themselves; else {}."""
     from .policy.inputs import MODALITIES
-    if swap_to is None or swap_to in MODALITIES or any(
-            o.split("=", 1)[0].strip() == "policy.modalities" for o in sets):
-        return []
-    return [f"policy.modalities={json.dumps([*MODALITIES, swap_to])}"]
+    if swap_to is None or swap_to in MODALITIES or \
+            lookup(as_mapping(sets), "policy", "modalities") is not None:
+        return {}
+    return {"policy": {"modalities": [*MODALITIES, swap_to]}}
 
 
 def _cmd_demo(args) -> int:
     if args.swap_to and args.swap_after is None:
         print("sebvs demo: --swap-to needs --swap-after TICKS", file=sys.stderr)
         return 2
-    overrides = ([] if args.sensor is None else topology_overrides(args.sensor)) + args.set
-    overrides += load_for_swap(args.swap_to, args.set)
+    overrides = [*([] if args.sensor is None else [topology_overrides(args.sensor)]),
+                 *args.set, load_for_swap(args.swap_to, args.set)]
     return run_demo(args.topology, overrides, args.swap_to, args.swap_after or 0,
                     args.profile_json, args.clock)
 

@@ -8,6 +8,11 @@ sensor study, research/sensors/plan.md).
 ``ideal8``: the benchmark before it, where both sensors read one ideal 8-bit render:
 ``camera.sensor="ideal8"`` and the emulator's "paper" preset (the paper's v2e settings).
 Its checkpoints are in checkpoints/ideal8/; research/ideal8/'s pages are its results.
+
+    from sebvs.sensor_pairs import topology_overrides
+    load_topology("topologies/nav_policy.toml", topology_overrides("ideal8"))
+
+The overrides are nested mappings (sebvs/runtime/overrides.py).
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ SENSORS = ("physical", "ideal8")
 DEFAULT_SENSOR = "physical"
 _EMULATOR_PRESET = {"physical": "physical", "ideal8": "paper"}
 _CHECKPOINTS = {"physical": "checkpoints", "ideal8": "checkpoints/ideal8"}
-# each pair's nominal condition of `sebvs eval` (sebvs/eval/run.py): what `sebvs eval
+# each pair's nominal condition of `sebvs eval` (sebvs/conditions.py): what `sebvs eval
 # --sensor` and the Gymnasium environments run when no condition is named
 DEFAULT_CONDITION = {"physical": "nominal_physical", "ideal8": "nominal"}
 
@@ -26,14 +31,24 @@ def check_sensor(name: str) -> str:
     return name
 
 
-def camera_override(name: str) -> str:
+def camera_override(name: str) -> dict:
     """The topology override that puts the camera on this pair's frame sensor."""
-    return f'camera.sensor="{check_sensor(name)}"'
+    return {"camera": {"sensor": check_sensor(name)}}
 
 
-def emulator_override(name: str) -> str:
+def emulator_preset(name: str) -> str:
+    """The event emulator's preset of this pair ("physical" or the paper's)."""
+    return _EMULATOR_PRESET[check_sensor(name)]
+
+
+def emulator_override(name: str) -> dict:
     """The topology override that gives the event emulator this pair's preset."""
-    return f'emulator.preset="{_EMULATOR_PRESET[check_sensor(name)]}"'
+    return {"emulator": {"preset": emulator_preset(name)}}
+
+
+def sensor_overrides(name: str) -> dict:
+    """The camera's and the emulator's overrides of this pair (`sebvs record --sensor`)."""
+    return {**camera_override(name), **emulator_override(name)}
 
 
 def checkpoint_dir(name: str) -> str:
@@ -41,8 +56,7 @@ def checkpoint_dir(name: str) -> str:
     return _CHECKPOINTS[check_sensor(name)]
 
 
-def topology_overrides(name: str) -> list[str]:
+def topology_overrides(name: str) -> dict:
     """Everything a closed-loop topology (camera, emulator, policy) needs to run this pair
     with the checkpoints trained on it: `sebvs demo --sensor`."""
-    return [camera_override(name), emulator_override(name),
-            f'policy.directory="{checkpoint_dir(name)}"']
+    return {**sensor_overrides(name), "policy": {"directory": checkpoint_dir(name)}}

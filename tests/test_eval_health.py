@@ -123,9 +123,9 @@ def test_fanout_sums_the_shards_handler_errors_and_old_lines_read_as_zeros(tmp_p
     def fake_fan_out(shards, task_of, collect, **kwargs):
         for shard in shards:
             task = task_of(shard)
-            # the last tracker.path: the shard's, after the run's own
-            path = Path(json.loads([o for o in task.overrides
-                                    if o.startswith("tracker.path=")][-1].split("=", 1)[1]))
+            # the shard's tracker.path, merged over the run's own
+            path = Path(task.overrides["tracker"]["path"])
+            assert json.loads(json.dumps(task.overrides)) == task.overrides   # plain JSON
             # lines written before the counters existed: no "health"
             path.write_text("".join(json.dumps(nav_record(k, plan.seed)) + "\n"
                                     for k in range(shard.first, shard.stop)))

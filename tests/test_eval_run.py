@@ -213,9 +213,12 @@ def test_eval_command_refuses_a_seed_outside_its_split(tmp_path, capsys):
 
 
 def test_conditions_all_names_every_condition_of_the_sensor_pair():
+    from sebvs.conditions import TASKS
     from sebvs.eval.cli import conditions_of
-    from sebvs.eval.run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, NAV_CONDITIONS,
-                                NAV_PHYSICAL_CONDITIONS)
+    NAV_CONDITIONS, NAV_PHYSICAL_CONDITIONS = (TASKS["nav"].names(p) for p in ("ideal8",
+                                                                               "physical"))
+    ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS = (TASKS["arm"].names(p) for p in ("ideal8",
+                                                                               "physical"))
     assert conditions_of("all", "arm", "ideal8") == list(ARM_CONDITIONS)
     assert conditions_of("all", "nav", "ideal8") == list(NAV_CONDITIONS)
     assert conditions_of("all", "nav") == list(NAV_PHYSICAL_CONDITIONS)     # the default pair
@@ -242,10 +245,10 @@ def test_each_condition_runs_its_own_sensor_pair_whatever_the_topology_says(tmp_
     plan.validate()
     for cond, camera, emulator in (("nominal", "ideal8", "paper"),
                                    ("hdr", "physical", "physical")):
-        for extra in ([], ['camera.sensor="physical"'], ['camera.sensor="ideal8"']):
+        for extra in ([], ['camera.sensor="physical"'], [{"camera": {"sensor": "ideal8"}}]):
             topo = load_topology(plan.policy_topology, extra)
             topo_path, sets = plan.overrides(Run(cond, "indoor", "rgb+event"))
-            topo = load_topology(topo_path, extra + sets)
+            topo = load_topology(topo_path, [*extra, sets])
             assert topo.actors["camera"].params["sensor"] == camera, (cond, extra)
             assert topo.actors["emulator"].params["preset"] == emulator, (cond, extra)
         topo = load_topology(*plan.overrides(Run(cond, "indoor", "rgb")))
@@ -256,14 +259,13 @@ def test_each_condition_runs_its_own_sensor_pair_whatever_the_topology_says(tmp_
 def test_the_shipped_topologies_and_checkpoints_are_the_physical_pair():
     from sebvs.policy.checkpoint import read_config
     from sebvs.runtime.topology import load_topology
-    from sebvs.sensor_pairs import checkpoint_dir, topology_overrides
+    from sebvs.sensor_pairs import checkpoint_dir, sensor_overrides, topology_overrides
     root = Path(__file__).resolve().parents[1]
     for name in ("nav_policy", "arm_policy", "nav_record", "arm_record"):
         topo = load_topology(root / "topologies" / f"{name}.toml")
         assert topo.actors["camera"].params["sensor"] == "physical", name
         assert topo.actors["emulator"].params["preset"] == "physical", name
-        old = load_topology(root / "topologies" / f"{name}.toml",
-                            topology_overrides("ideal8")[:2])
+        old = load_topology(root / "topologies" / f"{name}.toml", sensor_overrides("ideal8"))
         assert old.actors["camera"].params["sensor"] == "ideal8"
         assert old.actors["emulator"].params["preset"] == "paper"
     policy = load_topology(root / "topologies" / "nav_policy.toml", topology_overrides("ideal8"))
@@ -288,14 +290,16 @@ def test_a_demo_swap_to_the_frame_difference_loads_its_checkpoint():
     topo = load_topology(root / "topologies" / "nav_policy.toml", sets)
     assert topo.actors["policy"].params["modalities"] == ["rgb", "event", "rgb+event",
                                                           "rgb+diff"]
-    assert load_for_swap("event", []) == load_for_swap(None, []) == []
-    # the user's own list stands
-    assert load_for_swap("rgb+diff", ['policy.modalities=["rgb", "rgb+diff"]']) == []
+    assert load_for_swap("event", []) == load_for_swap(None, []) == {}
+    # the user's own list stands, a --set line's or a mapping's
+    assert load_for_swap("rgb+diff", ['policy.modalities=["rgb", "rgb+diff"]']) == {}
+    assert load_for_swap("rgb+diff", {"policy": {"modalities": ["rgb+diff"]}}) == {}
 
 
 def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_path):
     from sebvs.eval.run import EvalPlan, Run
-    from sebvs.runtime.topology import load_topology, parse_override
+    from sebvs.runtime.overrides import lookup
+    from sebvs.runtime.topology import load_topology
     # checkpoints that name no event window (none at all here): the window is one tick
     plan = EvalPlan(task="nav", modalities=["rgb+event"], conditions=["nominal", "flicker_100"],
                     episodes=1, out=tmp_path, control_hz=30.0,
@@ -303,13 +307,12 @@ def test_control_rate_sets_ticks_window_and_a_whole_multiple_render_rate(tmp_pat
     for cond, render, physics in (("nominal", 120.0, 1080.0), ("flicker_100", 1020.0, 1020.0)):
         for modality in ("rgb+event", "expert"):
             path, sets = plan.overrides(Run(cond, "indoor", modality))
-            values = {tuple(parse_override(s)[0]): parse_override(s)[1] for s in sets}
-            assert values[("sim", "control_hz")] == 30.0
-            assert values[("sim", "render_hz")] == render
-            assert values[("camera", "dvs_hz")] == render
-            assert values[("sim", "physics_hz")] == physics
+            assert lookup(sets, "sim", "control_hz") == 30.0
+            assert lookup(sets, "sim", "render_hz") == render
+            assert lookup(sets, "camera", "dvs_hz") == render
+            assert lookup(sets, "sim", "physics_hz") == physics
             if modality != "expert":
-                assert values[("accumulator", "window_s")] == pytest.approx(1 / 30)
+                assert lookup(sets, "accumulator", "window_s") == pytest.approx(1 / 30)
             topo = load_topology(path, sets)          # the sim accepts the rates
             assert topo.actors["sim"].params["control_hz"] == 30.0
     with pytest.raises(ValueError, match="control-hz"):

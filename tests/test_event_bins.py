@@ -107,15 +107,20 @@ def test_eval_sets_the_accumulator_from_the_checkpoint(tmp_path):
                     out=tmp_path / "out", checkpoints=str(ck),
                     extra=["accumulator.window_s=0.2"])
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))
-    mine = ['accumulator.representation="histogram"', "accumulator.bins=4",
-            "accumulator.window_s=0.4", "camera.luma_scale=1.0"]   # a full-size sensor
-    # then the condition's event sensor (the 8-bit benchmark's), and the user's --set last
-    assert sets[-6:] == mine + ['emulator.preset="paper"', "accumulator.window_s=0.2"]
+    # the checkpoint's frames (a full-size sensor), the user's --set after them
+    assert sets["accumulator"] == {"representation": "histogram", "bins": 4, "window_s": 0.2}
+    assert sets["camera"]["luma_scale"] == 1.0
+    assert sets["emulator"]["preset"] == "paper"    # the condition's: the 8-bit benchmark's
+    # without the user's --set the checkpoint's window stands
+    plan.extra = []
+    _, sets = plan.overrides(Run("nominal", "indoor", "event"))
+    assert sets["accumulator"]["window_s"] == 0.4
+    plan.extra = ["accumulator.window_s=0.2"]
     assert plan.event_frame_notes() == []
     # an older checkpoint (no event_frames) leaves the topology's accumulator as written
     (ck / "nav-event.json").write_text(json.dumps({"task": "nav", "modality": "event"}))
     _, sets = plan.overrides(Run("nominal", "indoor", "event"))
-    assert [s for s in sets if s.startswith("accumulator.")] == ["accumulator.window_s=0.2"]
+    assert sets["accumulator"] == {"window_s": 0.2}
     # ... and the evaluation says so, naming the file and the setting that would match it
     notes = plan.event_frame_notes()
     assert len(notes) == 1 and str(ck / "nav-event.json") in notes[0]

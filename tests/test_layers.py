@@ -16,13 +16,17 @@ LAYERS = (
     # what any command may write
     {"sebvs.output_guard"},
     {"sebvs.runtime", "sebvs.dvs", "sebvs.sim", "sebvs.metrics"},
+    # the tasks' conditions and scenarios as data: the recorder, the evaluator and the
+    # Gymnasium environments read them
+    {"sebvs.conditions"},
     # fan-out of episodes: runs topology shards through the runtime for data and eval
     {"sebvs.scale"},
     {"sebvs.data", "sebvs.experts"},
     # the sensor models on the scenes' light, and their validation against the experts
     {"sebvs.sensors"},
     {"sebvs.policy"},
-    {"sebvs.eval", "sebvs.numerics"},
+    # the evaluator; the stream probe (reads sebvs.data and sebvs.policy.inputs)
+    {"sebvs.eval", "sebvs.numerics", "sebvs.probe"},
     {"sebvs.cli", "sebvs.demo", "sebvs_actors"},
     # the field's tools on top of everything: Gymnasium environments, the rerun viewer
     {"sebvs.envs", "sebvs.view"},
@@ -101,6 +105,14 @@ def test_imports_only_go_down(graph):
             if dst != src and dst != "sebvs" and RANK.get(dst, -1) >= RANK.get(src, -1):
                 upward.append(f"{mod} -> {t}")
     assert not upward, "imports that do not go to a lower layer:\n" + "\n".join(upward)
+
+
+def test_the_environments_and_the_recorder_do_not_import_the_evaluator(graph):
+    # what they share with it (conditions, scenarios, topologies, the rates and event
+    # frames a run implies) is sebvs.conditions, below all three
+    users = [m for m in graph if m.startswith(("sebvs.envs", "sebvs.data"))]
+    found = [f"{m} -> {t}" for m in users for t in graph[m] if t.startswith("sebvs.eval")]
+    assert not found, "\n".join(found)
 
 
 def test_no_module_imports_itself_through_others(graph):

@@ -111,7 +111,7 @@ def test_failed_workers_are_retried_then_their_episodes_named(tmp_path):
     seen = []
 
     def task_of(shard):
-        return Task(str(shard), str(tmp_path / "missing.toml"), (), str(tmp_path / "runs"))
+        return Task(str(shard), str(tmp_path / "missing.toml"), {}, str(tmp_path / "runs"))
 
     def collect(shard, result):
         seen.append((shard.first, shard.stop, shard.attempt, result["code"]))
@@ -131,7 +131,7 @@ def test_a_retry_runs_only_from_the_first_missing_episode(tmp_path):
     def task_of(shard):
         # a short synthetic run (no MuJoCo) that ends at its timeout
         return Task(str(shard), str(ROOT / "topologies" / "synthetic.toml"),
-                    ("source.width=32", "source.height=32"), str(tmp_path / "runs"),
+                    {"source": {"width": 32, "height": 32}}, str(tmp_path / "runs"),
                     timeout_s=0.3)
 
     def collect(shard, result):
@@ -173,7 +173,7 @@ def test_a_lost_worker_is_retried(tmp_path):
     def task_of(shard):
         # the first try would run 60 s: it is killed once its run has started
         return Task(str(shard), str(ROOT / "topologies" / "synthetic.toml"),
-                    ("source.width=32", "source.height=32"), str(tmp_path / "runs"),
+                    {"source": {"width": 32, "height": 32}}, str(tmp_path / "runs"),
                     timeout_s=60.0 if shard.attempt == 1 else 0.3)
 
     def kill_first_worker():

@@ -196,29 +196,31 @@ def test_arm_lamp_is_in_the_wrist_view_and_never_covers_a_cube():
 
 # ---------------------------------------------------------------- the physical conditions
 def test_physical_conditions_are_separate_from_the_benchmark_and_named():
+    from sebvs.conditions import TASKS
     from sebvs.eval.cli import conditions_of
-    from sebvs.eval.run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, NAV_CONDITIONS,
-                                NAV_PHYSICAL_CONDITIONS, TASKS, EvalPlan, Run)
-    from sebvs.runtime.topology import parse_override
+    from sebvs.eval.plan import EvalPlan, Run
+    from sebvs.runtime.overrides import leaves, lookup
 
-    assert list(NAV_CONDITIONS) == ["nominal", "fast", "low_light", "flicker", "blur",
-                                    "fast_flicker"]
-    assert list(ARM_CONDITIONS) == ["nominal", "moving", "fast", "low_light", "flicker",
-                                    "blur"]
+    NAV_CONDITIONS, ARM_CONDITIONS = TASKS["nav"].names("ideal8"), TASKS["arm"].names("ideal8")
+    NAV_PHYSICAL_CONDITIONS = TASKS["nav"].names("physical")
+    ARM_PHYSICAL_CONDITIONS = TASKS["arm"].names("physical")
+    assert NAV_CONDITIONS == ["nominal", "fast", "low_light", "flicker", "blur",
+                              "fast_flicker"]
+    assert ARM_CONDITIONS == ["nominal", "moving", "fast", "low_light", "flicker", "blur"]
     assert set(NAV_PHYSICAL_CONDITIONS) == {"nominal_physical", "hdr", "dusk", "dusk_fast",
                                             "flicker_100", "flicker_120", "fast_hdr"}
     assert set(ARM_PHYSICAL_CONDITIONS) == {"nominal_physical", "fast_physical", "hdr",
                                             "dusk_moving", "fast_hdr"}
-    assert conditions_of("all", "nav", "ideal8") == list(NAV_CONDITIONS)
-    assert conditions_of("all", "nav") == list(NAV_PHYSICAL_CONDITIONS)
-    assert conditions_of("physical", "nav") == list(NAV_PHYSICAL_CONDITIONS)
-    assert conditions_of("physical", "arm") == list(ARM_PHYSICAL_CONDITIONS)
+    assert conditions_of("all", "nav", "ideal8") == NAV_CONDITIONS
+    assert conditions_of("all", "nav") == NAV_PHYSICAL_CONDITIONS
+    assert conditions_of("physical", "nav") == NAV_PHYSICAL_CONDITIONS
+    assert conditions_of("physical", "arm") == ARM_PHYSICAL_CONDITIONS
     assert conditions_of("hdr,physical,hdr", "arm") == [
         "hdr", *(c for c in ARM_PHYSICAL_CONDITIONS if c != "hdr")]
     for task, physical in (("nav", NAV_PHYSICAL_CONDITIONS), ("arm", ARM_PHYSICAL_CONDITIONS)):
-        assert TASKS[task].physical is physical
-        for name, sets in physical.items():
-            parsed = dict((".".join(p), v) for p, v in map(parse_override, sets))
+        for name in physical:
+            parsed = {".".join(p): v for p, v in
+                      leaves(TASKS[task].condition(name).overrides())}
             assert parsed["camera.sensor"] == "physical", name
             config = {k.split(".", 2)[2]: v for k, v in parsed.items()
                       if k.startswith("sim.config.")}
@@ -229,22 +231,18 @@ def test_physical_conditions_are_separate_from_the_benchmark_and_named():
                         episodes=1, out=Path("/nonexistent"))
         plan.validate()
         for modality in ("expert", "no_action"):
-            _, sets = plan.overrides(Run(next(iter(physical)), plan.scenarios[0], modality))
-            assert 'camera.sensor="physical"' in sets
+            _, sets = plan.overrides(Run(physical[0], plan.scenarios[0], modality))
+            assert lookup(sets, "camera", "sensor") == "physical"
     expected = {"hdr": ("hdr", "nominal", None), "dusk": ("dusk", "nominal", None),
                 "dusk_fast": ("dusk", "fast", None), "flicker_100": ("flicker", "nominal", 100.0),
                 "flicker_120": ("flicker", "nominal", 120.0), "fast_hdr": ("hdr", "fast", None)}
     for name, (lighting, speed, hz) in expected.items():
-        parsed = dict((".".join(p), v) for p, v in map(parse_override,
-                                                        NAV_PHYSICAL_CONDITIONS[name]))
-        assert parsed["sim.config.lighting"] == lighting
-        assert parsed.get("sim.config.target_speed", "nominal") == speed
-        assert parsed.get("sim.config.flicker_hz") == hz
-    arm = {n: dict((".".join(p), v) for p, v in map(parse_override, s))
-           for n, s in ARM_PHYSICAL_CONDITIONS.items()}
-    assert arm["dusk_moving"]["sim.config.belt_speed"] == 0.08
-    assert arm["fast_hdr"]["sim.config.belt_speed"] == 0.25
-    assert arm["hdr"].get("sim.config.conveyor", "static") == "static"
+        c = TASKS["nav"].condition(name)
+        assert (c.lighting, c.target_speed or "nominal", c.flicker_hz) == (lighting, speed, hz)
+    arm = TASKS["arm"].conditions
+    assert arm["dusk_moving"].belt_speed == 0.08
+    assert arm["fast_hdr"].belt_speed == 0.25
+    assert (arm["hdr"].conveyor or "static") == "static"
     with pytest.raises(ValueError, match="unknown condition 'dawn'"):
         EvalPlan(task="nav", modalities=["rgb"], conditions=["dawn"], episodes=1,
                  out=Path("/nonexistent")).validate()
@@ -253,15 +251,11 @@ def test_physical_conditions_are_separate_from_the_benchmark_and_named():
 def test_the_expert_row_keeps_a_conditions_render_rate():
     """The expert's run takes the policy topology's rates, but a condition's own (the mains
     flicker's 1 kHz renders) win: the expert sees what the policies see."""
-    from sebvs.eval.run import EvalPlan, Run
-    from sebvs.runtime.topology import parse_override
+    from sebvs.eval.plan import EvalPlan, Run
+    from sebvs.runtime.topology import load_topology
     plan = EvalPlan(task="nav", modalities=["rgb"], conditions=["flicker_100"], episodes=1,
                     out=Path("/nonexistent"))
-    _, sets = plan.overrides(Run("flicker_100", "indoor", "expert"))
-    last = {}
-    for text in sets:
-        parts, value = parse_override(text)
-        last[".".join(parts)] = value
-    assert last["sim.render_hz"] == 1000.0 and last["camera.dvs_hz"] == 1000.0
-    _, sets = plan.overrides(Run("flicker_100", "indoor", "rgb"))
-    assert "sim.render_hz=1000.0" in sets
+    for modality in ("expert", "rgb"):
+        topo = load_topology(*plan.overrides(Run("flicker_100", "indoor", modality)))
+        assert topo.actors["sim"].params["render_hz"] == 1000.0, modality
+        assert topo.actors["camera"].params["dvs_hz"] == 1000.0, modality

@@ -169,8 +169,15 @@ def register(sub) -> None:
                    help="record through this sensor pair: physical (the shipped topologies' "
                         "own) or ideal8 (the 8-bit benchmark: camera.sensor=\"ideal8\" and "
                         "the emulator's \"paper\" preset); --set lines come after it")
+    r.add_argument("--condition", default=None, metavar="NAME",
+                   help="record one named condition of the task (sebvs eval's, docs/sim.md) "
+                        "instead of the topology's randomised mix")
+    r.add_argument("--scenario", default=None, metavar="NAME",
+                   help="with --condition: the scene (nav indoor | outdoor, arm single | "
+                        "multi; default: the topology's)")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
-                   help="override a parameter (value read as TOML; repeatable)")
+                   help="override a parameter (value read as TOML; repeatable; after "
+                        "--sensor and --condition)")
     r.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                    help="give up after this long (default: none; with --workers or --ray: "
                         "each worker's run)")

@@ -10,6 +10,12 @@ repeats a scene under a new number. A topology seed in the test split's range
 (sebvs/data/splits.py) is refused before anything starts: held-out episodes stay held
 out only if no recording ever makes them.
 
+Overrides: the recorder's ``overrides`` get what the user asked for beyond the file, in
+order: the ``--sensor`` pair and the ``--condition`` / ``--scenario`` (sebvs/conditions.py:
+one named condition, the randomised mix off) as mappings, then the ``--set`` lines as
+typed; it applies them to the file's content it stores and stores them beside it, so each
+episode says what ran and what was asked.
+
 Fan-out (``--workers N``, ``--ray [ADDRESS]``; docs/scale.md): the run's episodes
 [M, M + N) (M: the dataset's next number) are split into contiguous ranges [a, b), one
 per worker (sebvs/scale). A worker runs the topology with the sim's ``first_episode = a``
@@ -108,17 +114,79 @@ def is_recording(path: Path) -> bool:
         for q in path.iterdir())
 
 
+def requested_overrides(args) -> list:
+    """What the user asked `sebvs record` to change, as override layers in order: the
+    sensor pair (--sensor), the condition and scenario (--condition, --scenario: a named
+    condition of sebvs/conditions.py in place of the topology's randomised mix), then the
+    --set lines as typed. The recorder keeps them as the episodes' provenance.
+
+    Parameters:
+        args: the parsed command line (callers building their own may leave out sensor,
+            condition and scenario).
+
+    Returns:
+        The layers. ValueError, in one line, for an unknown condition or scenario (the
+        known ones listed) or a condition of another sensor pair than --sensor.
+    """
+    from sebvs.sensor_pairs import sensor_overrides
+    from sebvs.runtime.topology import load_topology
+    sensor = getattr(args, "sensor", None)
+    condition, scenario = getattr(args, "condition", None), getattr(args, "scenario", None)
+    given: list = [sensor_overrides(sensor)] if sensor else []
+    if scenario and not condition:
+        raise ValueError("--scenario needs --condition (the topology's randomised mix "
+                         "draws its own scenes)")
+    if condition:
+        topo = load_topology(args.topology, [*given, *args.set])
+        given.append(condition_overrides(topo, condition, scenario, sensor))
+    return [*given, *args.set]
+
+
+def condition_overrides(topo, condition: str, scenario: str | None = None,
+                        sensor: str | None = None) -> dict:
+    """A recording topology made to record one named condition (and scenario) of its
+    task instead of its randomised mix.
+
+    Parameters:
+        topo: the recording topology (its sim's scene names the task).
+        condition: a condition of the task (sebvs/conditions.py).
+        scenario: one of its scenarios; None: the topology's scene as written.
+        sensor: the --sensor pair given beside it, which the condition must agree with.
+
+    Returns:
+        The overrides: no randomisation, the condition's (its event sensor where the
+        topology has an emulator), the scenario's. ValueError, in one line, otherwise.
+    """
+    from sebvs.conditions import task
+    from sebvs.runtime.overrides import merge, replace
+    sim = first_episode_actor(topo)
+    spec = task(topo.actors[sim].params.get("scene", "nav"))
+    chosen = spec.condition(condition)
+    if sensor is not None and chosen.sensor != sensor:
+        raise ValueError(f"condition {condition!r} is the {chosen.sensor} sensor pair's, "
+                         f"not --sensor {sensor}'s")
+    layers = [{sim: {"randomise": replace({})}}, chosen.overrides()]
+    if any(a.run.endswith(":Emulator") for a in topo.actors.values()):
+        layers.append(chosen.event_sensor_overrides())
+    if scenario is not None:
+        layers.append(spec.scenario(scenario).overrides())
+    return merge(*layers)
+
+
 def cmd_record(args) -> int:
+    from sebvs.runtime.overrides import as_mapping
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
-    from sebvs.sensor_pairs import camera_override, emulator_override
     from .index import DatasetIndex
     from .splits import check_recording_seed
     from sebvs.output_guard import OutputRefused, check_output_dir
 
-    if getattr(args, "sensor", None):   # the CLI's; callers building their own args may not
-        args.set = [camera_override(args.sensor), emulator_override(args.sensor), *args.set]
-    name = find_recorder(load_topology(args.topology, args.set))
+    try:
+        given = requested_overrides(args)
+    except (ValueError, LookupError) as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
+    name = find_recorder(load_topology(args.topology, given))
     out = Path(args.out)
     try:
         check_output_dir(out, inputs=[args.topology], force=getattr(args, "force", False),
@@ -126,10 +194,11 @@ def cmd_record(args) -> int:
     except OutputRefused as exc:
         print(f"sebvs record: {exc}", file=sys.stderr)
         return 2
-    overrides = [*args.set, f"{name}.out={json.dumps(str(out))}",
-                 f"{name}.episodes={args.episodes}",
-                 f"{name}.topology={json.dumps(str(Path(args.topology).resolve()))}",
-                 f"{name}.overrides={json.dumps(list(args.set))}"]
+    # the recorder's own settings; it applies `given` to the file it stores, so the
+    # episodes say what ran
+    overrides = [*given, {name: {"out": str(out), "episodes": args.episodes,
+                                 "topology": str(Path(args.topology).resolve()),
+                                 "overrides": list(given)}}]
     topo = load_topology(args.topology, overrides)
     # refused outright, with no flag to allow it: a test split that one flag can record from
     # is held out only by convention, and nothing a recording needs lies in that range
@@ -156,14 +225,14 @@ def cmd_record(args) -> int:
         # shards, on one worker when no more are asked for
         if args.workers is None and args.ray is None:
             args.workers = 1
-        return record_fanout(args, topo, name, out, overrides)
+        return record_fanout(args, topo, name, out, as_mapping(overrides))
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
     try:
         # the dataset's episode N is episode N of the seed: a recording into a dataset
         # that holds N episodes plays on from there, not episodes 0.. again (the same
         # scenes under new numbers, which a train/validation split would then straddle)
         topo = load_topology(args.topology,
-                             [*overrides, f"{first_episode_actor(topo)}.first_episode={first}"])
+                             [*overrides, {first_episode_actor(topo): {"first_episode": first}}])
     except LookupError:
         pass                # no episode source with first_episode: nothing to continue
     echo = (lambda s: None) if args.quiet else (lambda s: print(s, file=sys.stderr))
@@ -308,12 +377,23 @@ def _remove_if_empty(path: Path) -> None:
         pass
 
 
-def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) -> int:
-    """`sebvs record` over workers: see the module docstring."""
+def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
+    """`sebvs record` over workers: see the module docstring.
+
+    Parameters:
+        args: the command line (topology, episodes, fill, workers, ray, timeout, ...).
+        topo: the topology as it will run (its episode source is found in it).
+        recorder: the recorder actor's name.
+        out: the dataset.
+        overrides: everything a worker's run gets before its shard's own settings.
+
+    Returns:
+        The exit status.
+    """
     from tqdm import tqdm
 
-    from sebvs.scale import RayMissing, Shard, ShardsLost, Task, fan_out, split_episodes
-    from .index import INDEX, INDEX_VERSION, DatasetIndex, write_json_atomic
+    from sebvs.scale import RayMissing, ShardsLost, fan_out
+    from .index import DatasetIndex
 
     try:
         sim = first_episode_actor(topo)
@@ -323,36 +403,94 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
     out = out.resolve()
     index = DatasetIndex(out)
     index.adopt_unindexed()
-    base = index.next_episode_number()
-    have = index.numbers()
-    run_token = secrets.token_hex(3)
-    stages: dict[Shard, Path] = {}
-    runs_dir = str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve())
-    topology = str(Path(args.topology).resolve())
+    planned = plan_shards(args, index)
+    if planned is None:
+        print(f"sebvs record: {out} already holds episodes 0-{args.episodes - 1}; "
+              f"nothing to fill", file=sys.stderr)
+        return 0
+    wanted, shards = planned
+    bar = tqdm(total=len(wanted), unit="ep", desc="recording", disable=args.quiet,
+               dynamic_ncols=True)
+    staging = StagedShards(
+        index, topology=str(Path(args.topology).resolve()), overrides=overrides,
+        recorder=recorder, sim=sim, timeout_s=args.timeout, bar=bar,
+        runs_dir=str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve()))
+    where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
+        f"{args.workers} local workers"
+    first = (f"filling {len(wanted)} missing episode(s) of 0-{args.episodes - 1}"
+             if args.fill else f"first episode {wanted[0]:04d}")
+    print(f"sebvs record: {topo.name} -> {out} ({first}), {len(shards)} "
+          f"shard(s) on {where}", file=sys.stderr)
+    t0 = time.monotonic()
+    code = 0
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        fan_out(shards, staging.task_of, staging.collect, workers=args.workers, ray=args.ray,
+                max_attempts=getattr(args, "max_attempts", 3), on_poll=staging.poll,
+                echo=lambda text: tqdm.write(text, file=sys.stderr), start="fork")
+    except (ShardsLost, RayMissing) as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        code = 1
+    except KeyboardInterrupt:
+        print("sebvs record: interrupted; finished episodes kept", file=sys.stderr)
+        code = 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        bar.close()
+        staging.close()
+    recorded = _report_recorded(out, set(wanted), time.monotonic() - t0)
+    return code if code else (0 if recorded >= len(wanted) else 1)
+
+
+def plan_shards(args, index) -> tuple[list[int], list] | None:
+    """The episode numbers a fan-out records and its shards, or None when a fill finds
+    nothing missing.
+
+    Without --fill: episodes [base, base + N) of the seed (base: the dataset's next
+    number), as one process plays them, split over the workers. With --fill: the numbers
+    below N the dataset lacks, as contiguous ranges, each split over the workers in
+    proportion to its length.
+    """
+    from sebvs.scale import Shard, split_episodes
     parts = args.workers if args.workers else (os.cpu_count() or 1)
     if args.fill:
-        # the numbers below N the dataset lacks, as contiguous ranges, each split over the
-        # workers in proportion to its length
+        have = index.numbers()
         wanted = [k for k in range(args.episodes) if k not in have]
         if not wanted:
-            print(f"sebvs record: {out} already holds episodes 0-{args.episodes - 1}; "
-                  f"nothing to fill", file=sys.stderr)
-            return 0
-        shards = [Shard("recording", a, b) for lo, hi in contiguous_ranges(wanted)
-                  for a, b in split_episodes(lo, hi, max(1, round(parts * (hi - lo)
-                                                                  / len(wanted))))]
-    else:
-        # episodes [base, base + n) of the seed: the dataset's numbers, as one process
-        # plays them
-        wanted = list(range(base, base + args.episodes))
-        shards = [Shard("recording", a, b)
-                  for a, b in split_episodes(base, base + args.episodes, parts)]
-    n = len(wanted)
-    bar = tqdm(total=n, unit="ep", desc="recording", disable=args.quiet, dynamic_ncols=True)
-    done: set[int] = set()
+            return None
+        return wanted, [Shard("recording", a, b) for lo, hi in contiguous_ranges(wanted)
+                        for a, b in split_episodes(lo, hi, max(1, round(parts * (hi - lo)
+                                                                        / len(wanted))))]
+    base = index.next_episode_number()
+    return (list(range(base, base + args.episodes)),
+            [Shard("recording", a, b) for a, b in split_episodes(base, base + args.episodes,
+                                                                 parts)])
 
-    def task_of(shard: Shard) -> Task:
-        stage = out / STAGING / f"{run_token}-{shard.first}-{shard.stop}-try{shard.attempt}"
+
+class StagedShards:
+    """The driver's side of a fan-out recording: each shard's staging directory (its
+    worker's recorder writes there), its Task, and the adoption of what it finished into
+    the dataset, as soon as it appears."""
+
+    def __init__(self, index, *, topology: str, overrides: dict, recorder: str, sim: str,
+                 runs_dir: str, timeout_s: float | None, bar) -> None:
+        self.index, self.topology, self.overrides = index, topology, overrides
+        self.recorder, self.sim, self.runs_dir, self.timeout_s = recorder, sim, runs_dir, \
+            timeout_s
+        self.bar = bar
+        self.have = index.numbers()
+        self.token = secrets.token_hex(3)
+        self.stages: dict = {}          # Shard -> its staging directory
+        self.done: set[int] = set()
+
+    def task_of(self, shard):
+        """A fresh staging directory for the shard's attempt, and the worker's Task."""
+        from sebvs.runtime.overrides import merge
+        from sebvs.scale import Task
+        from .index import INDEX, INDEX_VERSION, write_json_atomic
+        index = self.index
+        stage = index.root / STAGING / (f"{self.token}-{shard.first}-{shard.stop}"
+                                        f"-try{shard.attempt}")
         stage.mkdir(parents=True, exist_ok=True)
         # shards cover [base, base + n) of the seed's episodes, so episode k is the
         # dataset's number k (base 0 here; a shard.json of an older driver may say
@@ -364,61 +502,45 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: list[str]) ->
             # the dataset itself
             write_json_atomic(stage / INDEX, {"version": INDEX_VERSION, "task": index.task,
                                               "episodes": []})
-        stages[shard] = stage
+        self.stages[shard] = stage
         size = shard.stop - shard.first
-        return Task(str(shard), topology,
-                    (*overrides, f"{recorder}.out={json.dumps(str(stage))}",
-                     f"{recorder}.episodes={size}", f"{sim}.first_episode={shard.first}",
-                     f"{sim}.episodes={size}"),
-                    runs_dir, timeout_s=args.timeout)
+        shard_sets = {self.recorder: {"out": str(stage), "episodes": size},
+                      self.sim: {"first_episode": shard.first, "episodes": size}}
+        return Task(str(shard), self.topology, merge(self.overrides, shard_sets),
+                    self.runs_dir, timeout_s=self.timeout_s)
 
-    def adopt(shard: Shard) -> None:
-        done.update(adopt_stage(stages[shard], index, have))
-        bar.update(len(done) - bar.n)
+    def adopt(self, shard) -> None:
+        self.done.update(adopt_stage(self.stages[shard], self.index, self.have))
+        self.bar.update(len(self.done) - self.bar.n)
 
-    def collect(shard: Shard, result: dict | None) -> list[int]:
-        adopt(shard)
-        shutil.rmtree(stages.pop(shard), ignore_errors=True)
-        return [k for k in range(shard.first, shard.stop) if k not in have]
+    def collect(self, shard, result: dict | None) -> list[int]:
+        """After the shard's worker ended: adopt what it finished; the episodes missing."""
+        self.adopt(shard)
+        shutil.rmtree(self.stages.pop(shard), ignore_errors=True)
+        return [k for k in range(shard.first, shard.stop) if k not in self.have]
 
-    def poll() -> None:
-        for shard in list(stages):
-            adopt(shard)        # at once: a driver that dies now loses nothing finished
+    def poll(self) -> None:
+        for shard in list(self.stages):
+            self.adopt(shard)       # at once: a driver that dies now loses nothing finished
 
-    where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
-        f"{args.workers} local workers"
-    first = (f"filling {n} missing episode(s) of 0-{args.episodes - 1}"
-             if args.fill else f"first episode {base:04d}")
-    print(f"sebvs record: {topo.name} -> {out} ({first}), {len(shards)} "
-          f"shard(s) on {where}", file=sys.stderr)
-    t0 = time.monotonic()
-    code = 0
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
-        fan_out(shards, task_of, collect, workers=args.workers, ray=args.ray,
-                max_attempts=getattr(args, "max_attempts", 3), on_poll=poll,
-                echo=lambda text: tqdm.write(text, file=sys.stderr), start="fork")
-    except (ShardsLost, RayMissing) as exc:
-        print(f"sebvs record: {exc}", file=sys.stderr)
-        code = 1
-    except KeyboardInterrupt:
-        print("sebvs record: interrupted; finished episodes kept", file=sys.stderr)
-        code = 1
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-        bar.close()
-        for stage in stages.values():
+    def close(self) -> None:
+        for stage in self.stages.values():
             shutil.rmtree(stage, ignore_errors=True)
-        _remove_if_empty(out / STAGING)
-    wall = time.monotonic() - t0
-    wanted_set = set(wanted)
-    new = [e for e in DatasetIndex(out).episodes()
-           if int(e["file"].split("_")[1].split(".")[0]) in wanted_set]
+        _remove_if_empty(self.index.root / STAGING)
+
+
+def _report_recorded(out: Path, wanted: set[int], wall_s: float) -> int:
+    """Print what a fan-out recorded; returns how many of the wanted episodes the
+    dataset now holds."""
+    from .index import DatasetIndex
+    index = DatasetIndex(out)
+    new = [e for e in index.episodes()
+           if int(e["file"].split("_")[1].split(".")[0]) in wanted]
     frames = sum(e["frames"] for e in new)
-    print(f"sebvs record: {len(new)} of {n} episode(s) recorded, {frames} frames, "
-          f"{wall:.1f} s wall; dataset {out} now holds {len(DatasetIndex(out).episodes())} "
+    print(f"sebvs record: {len(new)} of {len(wanted)} episode(s) recorded, {frames} frames, "
+          f"{wall_s:.1f} s wall; dataset {out} now holds {len(index.episodes())} "
           f"episode(s)")
-    return code if code else (0 if len(new) >= n else 1)
+    return len(new)
 
 
 def contiguous_ranges(numbers: list[int]) -> list[tuple[int, int]]:

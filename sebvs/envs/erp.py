@@ -2,9 +2,9 @@
 
 The settings come from the task's policy topology (topologies/nav_policy.toml,
 arm_policy.toml) with the same overrides `sebvs eval` gives a run of the condition and
-scenario (sebvs/eval/run.py): the sim, camera, emulator and accumulator get the very
-parameters and seeds (Topology.actor_seed) they get there, and run the same code
-(sebvs.sim.stepper.SceneStepper, sebvs.sensors.camera.CameraCore,
+scenario (both read them from sebvs/conditions.py): the sim, camera, emulator and
+accumulator get the very parameters and seeds (Topology.actor_seed) they get there, and
+run the same code (sebvs.sim.stepper.SceneStepper, sebvs.sensors.camera.CameraCore,
 sebvs.dvs.stream.SensorStream / FrameStream). So `env.reset(seed=s)` plays episode 0 of
 `sebvs eval --seed s`'s lockstep run, and every `reset()` after it the next episode of that
 run, as the sim actor plays them one after the other (options={"episode": k} jumps).
@@ -17,17 +17,19 @@ the camera's dvs rate, an event frame at each tick).
 from __future__ import annotations
 
 import math
-from pathlib import Path
+from collections.abc import Mapping
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from sebvs.conditions import TASKS, control_rate_overrides
+from sebvs.runtime.overrides import Overrides, merge
 from sebvs.runtime.topology import check_seed
 from sebvs.sensor_pairs import DEFAULT_CONDITION, DEFAULT_SENSOR
 
 OBS_KEYS = ("rgb", "events", "proprio")
-TASK_SCENARIO = {"nav": "indoor", "arm": "single"}
+TASK_SCENARIO = {name: spec.default_scenario for name, spec in TASKS.items()}
 
 
 def env_settings(task: str, condition: str = DEFAULT_CONDITION[DEFAULT_SENSOR],
@@ -36,62 +38,69 @@ def env_settings(task: str, condition: str = DEFAULT_CONDITION[DEFAULT_SENSOR],
                  width: int | None = None, height: int | None = None,
                  control_hz: float | None = None, episode_s: float | None = None,
                  representation: str | None = None, bins: int | None = None,
-                 overrides: list | tuple = ()) -> dict:
+                 overrides: Overrides = ()) -> dict:
     """The actors' parameters of the task's policy topology as `sebvs eval` runs a
-    condition and scenario of it, and the expert's: {"topology": Topology, "sim",
-    "camera", "emulator", "accumulator", "tracker", "expert": their Params}.
+    condition and scenario of it, and the expert's.
 
-    sensor: the camera's ("ideal8" | "physical"; None: the condition's), emulator: the
-    emulator preset (None: the condition's, "physical" under the physical conditions,
-    else the topology's), width / height: the image (the event frames follow), control_hz:
-    as `sebvs eval --control-hz` (the render and physics rates follow, the event window is
-    one control period), representation / bins: the accumulator's (bins alone: a voxel
-    grid), overrides: further `--set` lines, applied last.
+    Parameters:
+        task: "nav" or "arm".
+        condition, scenario: sebvs/conditions.py's (scenario None: the task's first).
+        sensor: the camera's ("ideal8" | "physical"; None: the condition's).
+        emulator: the emulator preset (None: the condition's, "physical" under the
+            physical conditions, the paper's under the 8-bit benchmark's).
+        width, height: the image (the event frames follow).
+        control_hz: as `sebvs eval --control-hz` (the render and physics rates follow, the
+            event window is one control period).
+        episode_s: the episode's length.
+        representation, bins: the accumulator's (bins alone: a voxel grid).
+        overrides: further overrides, applied last: a mapping, or `--set` lines.
+
+    Returns:
+        {"topology": Topology, "sim", "camera", "emulator", "accumulator", "tracker",
+        "expert": their Params}. ValueError, in one line, for an unknown task, condition
+        or scenario.
     """
-    from sebvs.eval.run import TASKS, EvalPlan, Run, event_sensor_overrides
     from sebvs.runtime.params import build_params
     from sebvs.runtime.topology import load_topology
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r} (one of {', '.join(TASKS)})")
     spec = TASKS[task]
-    scenario = scenario or TASK_SCENARIO[task]
-    if condition not in spec.known_conditions:
-        raise ValueError(f"unknown condition {condition!r} for task {task} "
-                         f"(one of {', '.join(spec.known_conditions)})")
-    if scenario not in spec.scenarios:
-        raise ValueError(f"unknown scenario {scenario!r} for task {task} "
-                         f"(one of {', '.join(spec.scenarios)})")
-    plan = EvalPlan(task=task, modalities=[], conditions=[condition], episodes=1,
-                    out=Path("."), scenarios=[scenario], control_hz=control_hz)
-    plan.validate()
-    run = Run(condition, scenario, "rgb+event")     # a run with the event chain wired
-    sets = [*spec.known_conditions[condition], *spec.scenarios[scenario],
-            *event_sensor_overrides(task, condition), *plan.rate_overrides(run)]
+    cond = spec.condition(condition)
+    scene = merge(cond.overrides(), spec.scenario(scenario or spec.default_scenario).overrides())
+    if control_hz is not None and not (isinstance(control_hz, (int, float))
+                                       and 0 < control_hz <= 1000):
+        raise ValueError(f"control_hz must be in (0, 1000], got {control_hz!r}")
+    # the rates of a run with the event chain wired, as `sebvs eval` sets them
+    rate = {} if control_hz is None else \
+        control_rate_overrides(spec.policy_sim(), cond, control_hz, events=True)
+    mine: dict = {}
     if sensor is not None:
-        sets.append(f'camera.sensor="{sensor}"')
+        mine = merge(mine, {"camera": {"sensor": sensor}})
     if emulator is not None:
-        sets.append(f'emulator.preset="{emulator}"')
+        mine = merge(mine, {"emulator": {"preset": emulator}})
     if width is not None:
-        sets += [f"sim.config.width={int(width)}", f"accumulator.out_width={int(width)}"]
+        mine = merge(mine, {"sim": {"config": {"width": int(width)}},
+                            "accumulator": {"out_width": int(width)}})
     if height is not None:
-        sets += [f"sim.config.height={int(height)}", f"accumulator.out_height={int(height)}"]
+        mine = merge(mine, {"sim": {"config": {"height": int(height)}},
+                            "accumulator": {"out_height": int(height)}})
     if episode_s is not None:
-        sets.append(f"sim.episode_s={float(episode_s)}")
+        mine = merge(mine, {"sim": {"episode_s": float(episode_s)}})
     if bins is not None:
-        sets.append(f"accumulator.bins={int(bins)}")
+        mine = merge(mine, {"accumulator": {"bins": int(bins)}})
         if representation is None:
             representation = "voxel"
     if representation is not None:
-        sets.append(f'accumulator.representation="{representation}"')
-    sets += list(overrides)
-    topo = load_topology(spec.policy_topology, sets)
+        mine = merge(mine, {"accumulator": {"representation": representation}})
+    topo = load_topology(spec.policy_topology,
+                         [scene, cond.event_sensor_overrides(), rate, mine,
+                          *([overrides] if isinstance(overrides, Mapping) else overrides)])
     out = {"topology": topo}
     for name in ("sim", "camera", "emulator", "accumulator", "tracker"):
         a = topo.actors[name]
         out[name] = build_params(a.cls.Params, a.params, where=name)
     # the expert of `sebvs eval`'s reference row, on the same scene
-    expert = load_topology(spec.expert_topology, [*spec.known_conditions[condition],
-                                                  *spec.scenarios[scenario]]).actors["expert"]
+    expert = load_topology(spec.expert_topology, scene).actors["expert"]
     out["expert"] = build_params(expert.cls.Params, expert.params, where="expert")
     return out
 
@@ -101,8 +110,8 @@ class ERPEnv(gymnasium.Env):
 
     Keyword arguments (gymnasium.make passes them on):
       scenario     nav "indoor" | "outdoor"; arm "single" | "multi" (three cubes)
-      condition    a condition of `sebvs eval` (sebvs/eval/run.py; default: the default
-                   sensor pair's nominal_physical, the 8-bit pair's is "nominal"):
+      condition    a condition of `sebvs eval` (sebvs/conditions.py, docs/sim.md; default:
+                   the default sensor pair's nominal_physical, the 8-bit pair's is "nominal"):
                    nav nominal, fast, low_light, flicker, blur, fast_flicker,
                    nominal_physical, hdr, dusk, dusk_fast, flicker_100, flicker_120,
                    fast_hdr; arm nominal, moving, fast, low_light, flicker, blur,
@@ -121,7 +130,8 @@ class ERPEnv(gymnasium.Env):
       render_mode  None | "rgb_array" (render() returns the camera's RGB frame)
       seed         the topology seed a first reset() without one plays (0), 0 <= seed < 2**31
                    like every seed of reset(seed=...): one seed, one set of episodes
-      overrides    further `--set actor.key=value` lines on the policy topology
+      overrides    further overrides of the policy topology: a mapping
+                   ({"sim": {"command_noise": [0.0, 0.0]}}) or `--set` lines
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}

@@ -1,7 +1,10 @@
 """Closed-loop evaluation: runs the policy topologies over conditions, then tables, plots and episode videos.
 
-run     the plan (tasks, conditions, modalities, seeds) and its runs through the supervisor
-report  the paper's tables (4 and 5) and the paired comparisons, success plot
+plan    the plan (modalities, conditions, scenarios, seeds) and each run's overrides; the
+        conditions and scenarios themselves are sebvs/conditions.py's
+run     the runner: each run through the supervisor (or fanned out), the health files,
+        results.json
+report  the paper's tables (4 and 5), the paired comparisons, and every plot
 video   one MP4 per episode: what the policy saw, events, truth and the centre error
 cli     `sebvs eval`
 

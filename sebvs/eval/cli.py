@@ -16,31 +16,31 @@ def conditions_of(text: str | None, task: str, sensor: str = "physical") -> list
     given twice runs once. ValueError for a condition of the other pair (each condition
     sets its own camera sensor: one evaluation, one pair, one set of checkpoints); unknown
     names are left to EvalPlan.validate."""
-    from .run import TASKS, condition_sensor
+    from sebvs.conditions import TASKS
     spec = TASKS[task]
-    groups = {"physical": list(spec.physical), "ideal8": list(spec.conditions)}
+    groups = {pair: spec.names(pair) for pair in ("physical", "ideal8")}
     groups["all"] = groups[sensor]
     out: list[str] = []
     for name in (c.strip() for c in (text or DEFAULT_CONDITION[sensor]).split(",")):
         for c in groups.get(name, [name] if name else []):
             if c not in out:
                 out.append(c)
-    other = [c for c in out if c in spec.known_conditions
-             and condition_sensor(task, c) != sensor]
+    other = [c for c in out if c in spec.conditions and spec.conditions[c].sensor != sensor]
     if other:
-        raise ValueError(f"condition {other[0]!r} is the {condition_sensor(task, other[0])} "
-                         f"sensor pair's, this evaluation runs --sensor {sensor} (its "
-                         f"conditions: {', '.join(groups[sensor])}); give --sensor "
-                         f"{condition_sensor(task, other[0])} to run it with the "
-                         f"checkpoints trained on that pair")
+        pair = spec.conditions[other[0]].sensor
+        raise ValueError(f"condition {other[0]!r} is the {pair} sensor pair's, this "
+                         f"evaluation runs --sensor {sensor} (its conditions: "
+                         f"{', '.join(groups[sensor])}); give --sensor {pair} to run it with "
+                         f"the checkpoints trained on that pair")
     return out
 
 
 def _cmd_eval(args) -> int:
     from sebvs.output_guard import check_output_dir
     from sebvs.sensor_pairs import checkpoint_dir
-    from .report import never_acted
-    from .run import TASKS, EvalPlan, evaluate
+    from .plan import EvalPlan
+    from .report import never_acted, output_files
+    from .run import evaluate
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     try:
         conditions = conditions_of(args.conditions, args.task, args.sensor)
@@ -71,7 +71,7 @@ def _cmd_eval(args) -> int:
         return 2
     results = evaluate(plan)
     print((plan.out / "report.md").read_text())
-    print(f"wrote {plan.out}/: {TASKS[plan.task].output_files}"
+    print(f"wrote {plan.out}/: {output_files(plan.task)}"
           + (f", videos/ ({len(results.get('videos', []))} files)" if plan.video else ""))
     # after the outputs are written: the marked rows and Run health are the evidence
     idle = never_acted(results)
@@ -99,9 +99,9 @@ def _check_checkpoints(plan) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     from sebvs.data.cli import add_fanout_arguments, seed_arg
     from sebvs.data.splits import DEFAULT_EVAL_SPLIT, EVAL_SPLITS, SPLITS
+    from sebvs.conditions import TASKS
     from sebvs.sensor_pairs import DEFAULT_SENSOR, SENSORS
-    from .run import (ARM_CONDITIONS, ARM_PHYSICAL_CONDITIONS, ARM_SCENARIOS, NAV_CONDITIONS,
-                      NAV_PHYSICAL_CONDITIONS, NAV_SCENARIOS)
+    nav, arm = TASKS["nav"], TASKS["arm"]
     e = sub.add_parser(
         "eval", help="closed-loop evaluation of policies against the expert",
         description="Run every modality (the expert as the reference row and a no-action "
@@ -132,13 +132,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--conditions", default=None,
                    help=f"comma-separated names or groups of the --sensor pair (default: its "
                         f"nominal); all = every one of the pair's. physical: light in physical "
-                        f"units (nav: {', '.join(NAV_PHYSICAL_CONDITIONS)}; arm: "
-                        f"{', '.join(ARM_PHYSICAL_CONDITIONS)}; docs/sim.md); ideal8: the "
-                        f"8-bit benchmark's (nav: {', '.join(NAV_CONDITIONS)}; arm: "
-                        f"{', '.join(ARM_CONDITIONS)})")
+                        f"units (nav: {', '.join(nav.names('physical'))}; arm: "
+                        f"{', '.join(arm.names('physical'))}; docs/sim.md); ideal8: the "
+                        f"8-bit benchmark's (nav: {', '.join(nav.names('ideal8'))}; arm: "
+                        f"{', '.join(arm.names('ideal8'))})")
     e.add_argument("--scenarios", default="",
-                   help=f"comma-separated; nav: {', '.join(NAV_SCENARIOS)} (the scene "
-                        f"variant); arm: {', '.join(ARM_SCENARIOS)} (default: all of the task's)")
+                   help=f"comma-separated; nav: {', '.join(nav.scenarios)} (the scene "
+                        f"variant); arm: {', '.join(arm.scenarios)} (default: all of the task's)")
     e.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
                    help="realtime: the policy's latency affects control, as on a robot")
     e.add_argument("--checkpoints", default=None,
@@ -171,7 +171,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "render rate that is a whole multiple of it; the physical frame "
                         "camera runs at it too, capped at its sensor's top rate")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
-                   help="extra topology overrides for every run")
+                   help="extra topology overrides for every run (results.json keeps them)")
     e.add_argument("--out", required=True,
                    help="output directory: new, empty, or an earlier evaluation's (it "
                         "resumes); never a dataset or the checkpoint folder")

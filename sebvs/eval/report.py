@@ -1,10 +1,16 @@
-"""Aggregate per-episode results into the paper's tables (Markdown) and plots.
+"""Aggregate per-episode results into the paper's tables (Markdown) and every plot.
+
+    from sebvs.eval.report import write_outputs
+    write_outputs(json.loads(Path("out/eval/results.json").read_text()), Path("out/eval"))
 
 ``results`` is what `sebvs eval` writes to results.json::
 
     {"task": "nav" | "arm", "clock": ..., "split": "dev" | "test" | "custom",
      "seed_range": [first, last], "seed": topology seed,
-     "overrides": [the --set given, where any], "episodes": [
+     "overrides": [the --set given, where any (or the mapping a script gave)],
+     "event_sensor": [{"preset", "preset_version", "conditions"}: the emulator the event
+                      rows ran, one entry per distinct sensor; absent without event rows],
+     "episodes": [
         {"modality": "rgb" | "event" | "rgb+event" | "expert" | "no_action",
          "condition": "nominal", "scenario": "indoor", "seed": 3, "metrics": {...}}, ...],
      "runs": [{"condition", "scenario", "modality", "episodes", "commands", "rejected",
@@ -28,8 +34,11 @@ latency.
 """
 from __future__ import annotations
 
+import json
 import math
 from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -40,6 +49,28 @@ MODALITY_ORDER = ("expert", "no_action", "rgb", "event", "rgb+event", "rgb+diff"
 NAME = {"expert": "Expert (reference)", "no_action": "No action (baseline)",
         "rgb": "RGB-only", "event": "Event-only", "rgb+event": "RGB+Event",
         "rgb+diff": "RGB+Diff (control)"}
+
+
+
+
+@dataclass(frozen=True)
+class Trace:
+    """The per-tick error trace a task's tracker records: its episode key, the plot's
+    file and the plot's label."""
+    key: str
+    png: str
+    label: str
+
+
+TRACES = {"nav": Trace("trace_error_px", "centroid_error.png",
+                       "centroid error (px); gaps: target out of view"),
+          "arm": Trace("trace_error_mm", "pose_error.png",
+                       "position error against the task's pose (mm)")}
+
+
+def output_files(task: str) -> str:
+    """The files write_outputs() writes for a task, for `sebvs eval`'s last line."""
+    return f"report.md, results.json, success.png, {TRACES[task].png}, latency.png"
 
 
 # the counters that put a run into the "Run health" section
@@ -294,14 +325,28 @@ def _health_section(health: dict) -> list[str]:
     return lines + [""]
 
 
+def _event_sensor_line(results: dict) -> list[str]:
+    """The header's line naming the emulator the event rows ran (results written before
+    it was recorded say nothing)."""
+    sensors = results.get("event_sensor") or []
+    if not sensors:
+        return []
+    named = [f"preset {s.get('preset')}, version {s.get('preset_version')}"
+             + (f" ({', '.join(s.get('conditions') or [])})" if len(sensors) > 1 else "")
+             for s in sensors]
+    return [f"event sensor: emulator {'; '.join(named)}", ""]
+
+
 def render_report(results: dict) -> str:
     task = results["task"]
     eps = results["episodes"]
     health = _health_index(results)
     lines = [f"# Closed-loop evaluation: {task}", ""]
-    meta = {k: v for k, v in results.items() if k not in ("episodes", "task", "runs")}
+    meta = {k: v for k, v in results.items()
+            if k not in ("episodes", "task", "runs", "event_sensor")}
     if meta:
         lines += [", ".join(f"{k}: {v}" for k, v in meta.items()), ""]
+    lines += _event_sensor_line(results)
     lines += _seed_note(results)
     if task == "nav":
         lines += ["Success: share of frames with the target within 200 px of the image centre "
@@ -427,4 +472,67 @@ def plot_success(results: dict, path) -> None:
     ax.set_title(f"{results['task']}: success by condition and modality (95% Wilson)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_outputs(results: dict, out: Path) -> None:
+    """results.json, report.md and the three plots of an evaluation into `out`."""
+    (out / "results.json").write_text(json.dumps(results, indent=1))
+    (out / "report.md").write_text(render_report(results) + "\n")
+    plot_success(results, out / "success.png")
+    trace = TRACES[results["task"]]
+    plot_traces(results, out / trace.png, trace.key, trace.label)
+    plot_latency(results, out / "latency.png")
+
+
+def plot_traces(results: dict, path: Path, key: str, what: str) -> None:
+    """A per-tick error trace against time (`key` of each episode: nav centroid error px,
+    arm position error mm), one panel per condition and scenario, the first episode of
+    each modality."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = sorted({(e["condition"], e.get("scenario", "single"))
+                     for e in results["episodes"]})
+    fig, axes = plt.subplots(len(groups) or 1, 1, figsize=(7, 2.4 * max(1, len(groups))),
+                             squeeze=False)
+    for ax, (cond, scen) in zip(axes[:, 0], groups):
+        seen = set()
+        for e in results["episodes"]:
+            if (e["condition"], e.get("scenario", "single")) != (cond, scen) \
+                    or e["modality"] in seen:
+                continue
+            seen.add(e["modality"])
+            tr = np.array([np.nan if v is None else v for v in e.get(key, [])], float)
+            ax.plot(np.arange(tr.size), tr, lw=1, label=f"{e['modality']} (seed {e['seed']})")
+        title = cond if scen == "single" and results["task"] == "nav" else f"{cond}, {scen}"
+        ax.set_title(f"{title}: {what}", fontsize=9)
+        ax.set_xlabel("control tick")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_latency(results: dict, path: Path) -> None:
+    """Histogram of per-call inference latency per modality."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    by_mod: dict[str, list] = {}
+    for e in results["episodes"]:
+        by_mod.setdefault(e["modality"], []).extend(e.get("inference_ms") or [])
+    for mod, vals in by_mod.items():
+        if vals:
+            v = np.asarray(vals)
+            ax.hist(v, bins=40, alpha=0.6,
+                    label=f"{mod}: p50 {np.median(v):.2f} ms, p99 {np.percentile(v, 99):.2f}")
+    ax.set_xlabel("inference latency per call (ms)")
+    if by_mod and any(by_mod.values()):     # the expert and baseline rows infer nothing
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)

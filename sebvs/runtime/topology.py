@@ -15,10 +15,15 @@ import os
 import re
 import tomllib
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
+from .overrides import (REPLACE, Overrides, TopologyError, is_replacement, layers, leaves,
+                        merge, resolved)
+# the one parser of `actor.key=value`, importable from here as it always was
+from .overrides import parse_override  # noqa: F401
 from .params import Range, build_params, clip, coerce_param, short_repr
 
 MAX_QUEUE = 100_000
@@ -59,10 +64,6 @@ SINGLE_PROCESS = "all"
 # how many CPUs a run may count on, when several runs share the machine (the local pool of
 # `--workers N` sets it to its share for each worker); unset: the CPUs this process may use
 CPUS_ENV = "SEBVS_CPUS"
-
-
-class TopologyError(ValueError):
-    """A topology that cannot run; the message names file, table and key."""
 
 
 @dataclass
@@ -206,46 +207,66 @@ def check_seed(seed: Any, where: str = "topology seed") -> int:
     return value
 
 
-def parse_override(text: str) -> tuple[list[str], Any]:
-    """``actor.key=value`` -> (["actor", "key"], value), the value read as TOML when it parses."""
-    if "=" not in text:
-        raise TopologyError(f"--set {short_repr(text)}: expected actor.key=value")
-    path, _, raw = text.partition("=")
-    parts = path.strip().split(".")
-    if len(parts) < 2 or not all(parts):
-        raise TopologyError(f"--set {short_repr(text)}: expected actor.key=value "
-                            f"(or topology.key=value)")
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw  # a bare word: take it as a string
-    return parts, value
+def apply_overrides(doc: dict, overrides: Overrides, path: str | Path = "topology") -> dict:
+    """A parsed topology document with overrides merged in, layer by layer (merge():
+    later wins, a mapping merges into a table key by key, anything else replaces).
+
+    An override names an existing actor, or adds one: a new actor's table needs its
+    `run` ("module:Class"; a --set line `NAME.run=...` first). A key path through a value
+    that is not a table is refused rather than replaced.
+
+    Parameters:
+        doc: the document as tomllib read it (not changed).
+        overrides: a mapping, or layers in order: mappings, or --set lines as typed.
+        path: the file, for the messages of a mapping's errors.
+
+    Returns:
+        The new document. TopologyError, in one line naming the --set line (or the file
+        and the override's key path), where an override cannot apply.
+    """
+    for mapping, line in layers(overrides):
+        doc = _apply_layer(doc, mapping, line, path)
+    return doc
 
 
-def _subtable(table: dict, key: str, text: str) -> dict:
-    sub = table.setdefault(key, {})
-    if not isinstance(sub, dict):
-        raise TopologyError(f"--set {short_repr(text)}: {short_repr(key)} is not a table")
-    return sub
+def _apply_layer(doc: dict, mapping: Mapping, line: str | None, path) -> dict:
+    def where(keys: tuple) -> str:
+        return f"--set {short_repr(line)}" if line is not None else \
+            f"{path}: override {clip('.'.join(map(str, keys)))}"
+
+    shaped: dict = {}
+    for name, table in mapping.items():
+        if name in ("topology", "hosts"):
+            shaped[name] = table
+        else:
+            shaped.setdefault("actors", {})[name] = table
+    actors = doc.get("actors", {})
+    for name, table in shaped.get("actors", {}).items():
+        content = table[REPLACE] if is_replacement(table) else table
+        if not isinstance(actors, dict) or name in actors:
+            continue
+        if not (isinstance(content, Mapping) and "run" in content):
+            first = next(iter(content), "run") if isinstance(content, Mapping) else "run"
+            # a --set line says which line to give; a mapping, what its table lacks
+            how = (f"add one with {clip(name)}.run=\"module:Class\" first" if line is not None
+                   else "a new actor's table needs its 'run' = \"module:Class\"")
+            raise TopologyError(f"{where((name, first))}: no actor {short_repr(name)} "
+                                f"(actors: {', '.join(actors) or 'none'}; {how})")
+    _check_tables(doc, shaped, (), where)
+    return resolved(merge(doc, shaped))
 
 
-def apply_override(doc: dict, text: str) -> None:
-    """Apply one ``--set actor.key=value`` to a parsed topology document, in place."""
-    parts, value = parse_override(text)
-    if parts[0] in ("topology", "hosts"):
-        table = _subtable(doc, parts[0], text)
-    else:
-        actors = _subtable(doc, "actors", text)
-        if parts[0] not in actors:
-            # `--set NAME.run="module:Class"` adds an actor (a video writer, a recorder...)
-            if parts[1:] != ["run"]:
-                raise TopologyError(f"--set {short_repr(text)}: no actor {short_repr(parts[0])} "
-                                    f"(actors: {', '.join(actors) or 'none'}; add one with "
-                                    f"{clip(parts[0])}.run=\"module:Class\" first)")
-        table = _subtable(actors, parts[0], text)
-    for p in parts[1:-1]:
-        table = _subtable(table, p, text)
-    table[parts[-1]] = value
+def _check_tables(base: Mapping, over: Mapping, keys: tuple, where) -> None:
+    """A mapping of keys may only merge into a table: `sim.episode_s.x=1` is refused."""
+    for key, value in over.items():
+        # the document's "actors" level has no part in an override's key path
+        here = keys if (not keys and key == "actors") else (*keys, key)
+        if is_replacement(value) or not isinstance(value, Mapping) or key not in base:
+            continue
+        if not isinstance(base[key], Mapping):
+            below = next(leaves(value), ((), None))[0]     # the key path it was given
+            raise TopologyError(f"{where((*here, *below))}: {short_repr(key)} is not a table")
+        _check_tables(base[key], value, here, where)
 
 
 def import_actor_module(name: str):
@@ -343,7 +364,18 @@ def check_cpus_available(value: tuple[int, ...], where: str) -> None:
                             f"available here (available: {', '.join(map(str, sorted(available)))})")
 
 
-def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topology:
+def load_topology(path: str | Path, overrides: Overrides = ()) -> Topology:
+    """The topology of a file with overrides applied, checked whole before anything starts.
+
+    Parameters:
+        path: the TOML file.
+        overrides: a mapping (`{"sim": {"episode_s": 2.0}}`), or layers applied in order,
+            each a mapping or a `--set` line as a user typed it (sebvs/runtime/overrides.py).
+
+    Returns:
+        The Topology. TopologyError, in one line naming the file, table and key (or the
+        --set line), for anything that cannot run.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")     # TOML is UTF-8 whatever the locale
@@ -362,9 +394,7 @@ def load_topology(path: str | Path, overrides: list[str] | tuple = ()) -> Topolo
         raise TopologyError(f"{path}: {exc}") from None
     except RecursionError:
         raise TopologyError(f"{path}: arrays or tables nested too deeply") from None
-    for text in overrides:
-        apply_override(doc, text)
-    return build_topology(doc, path)
+    return build_topology(apply_overrides(doc, overrides, path), path)
 
 
 def build_topology(doc: dict, path: Path) -> Topology:

@@ -5,7 +5,9 @@ The pool runs any picklable job through a worker function (`fan_out`'s `worker`,
 point per shard, with nothing to retry. What follows is the episode case it was built for.
 
 A *shard* is episodes [first, stop) of a job (a recording, or one evaluation run). Each
-shard becomes a `Task`: a topology file plus overrides that a worker runs to its end
+shard becomes a `Task`: a topology file plus overrides (a nested mapping of plain JSON
+values, sebvs/runtime/overrides.py: what pickles and travels to a Ray node as it is) that
+a worker runs to its end
 through the runtime's Supervisor, in a run directory and with sockets of its own (every
 Supervisor draws a fresh run id, which names its run directory, ipc sockets and
 shared-memory rings, so concurrent runs never share an endpoint). The caller says what
@@ -74,7 +76,7 @@ class Task:
     """What a worker runs: picklable, every path absolute."""
     label: str                         # for messages: "nominal/indoor/expert [0, 5)"
     topology: str
-    overrides: tuple[str, ...]
+    overrides: dict                    # {"sim": {"first_episode": 5}, ...}: JSON values
     runs_dir: str
     cwd: str = field(default_factory=os.getcwd)
     env: tuple[tuple[str, str], ...] = field(
@@ -122,7 +124,7 @@ def run_task(task: Task) -> dict:
     if task.cwd not in sys.path:
         sys.path.insert(0, task.cwd)      # topologies may name actors of the checkout (tests.*)
     os.environ.update(dict(task.env))
-    sup = Supervisor(load_topology(task.topology, list(task.overrides)),
+    sup = Supervisor(load_topology(task.topology, task.overrides),
                      runs_dir=task.runs_dir, echo=lambda text: None)
     previous = {}
     if _main_thread():

@@ -43,26 +43,26 @@ DEFAULT_EPISODE_S = {"nav": 10.0, "arm": 2.0}
 def topology_overrides(task: str, condition: str = "nominal", scenario: str | None = None,
                        *, seed: int = 0, episodes: int = 1, episode_s: float | None = None,
                        probe: str | Path = "probe", max_arrays: int = 0,
-                       extra: list | tuple = ()) -> tuple[Path, list[str]]:
+                       extra: list | tuple = ()) -> tuple[Path, dict]:
     """The policy topology and the overrides of `sebvs eval`'s no-action run of this
     condition and scenario, with the event chain wired to a probe (which also keeps the
     RGB frames): (topology path, overrides)."""
-    from sebvs.envs.erp import TASK_SCENARIO
-    from sebvs.eval.run import BASELINE, EvalPlan, Run, TASKS, event_sensor_overrides
-    scenario = scenario or TASK_SCENARIO[task]
+    from sebvs.conditions import TASKS
+    from sebvs.eval.plan import BASELINE, EvalPlan, Run
+    from sebvs.runtime.overrides import merge
+    scenario = scenario or TASKS[task].default_scenario
     plan = EvalPlan(task=task, modalities=[], conditions=[condition], episodes=episodes,
                     out=Path(tempfile.gettempdir()), scenarios=[scenario], seed=seed,
                     baseline=True, expert=False, extra=list(extra))
     plan.validate()
     path, sets = plan.overrides(Run(condition, scenario, BASELINE))
-    sets = [s for s in sets if not s.startswith("tracker.path=")] + [
-        'tracker.path=""', *event_sensor_overrides(task, condition),
-        'probe.run="actors.synthetic:Probe"', f"probe.max_arrays={int(max_arrays)}",
-        f"probe.path={json.dumps(str(probe))}",
-        'probe.inputs={events={from="accumulator/frames", queue=256}, '
-        'rgb={from="camera/rgb", queue=256}}']
-    if episode_s is not None:
-        sets.append(f"sim.episode_s={float(episode_s)}")
+    probe_sets = {"probe": {"run": "actors.synthetic:Probe", "max_arrays": int(max_arrays),
+                            "path": str(probe),
+                            "inputs": {"events": {"from": "accumulator/frames", "queue": 256},
+                                       "rgb": {"from": "camera/rgb", "queue": 256}}}}
+    sets = merge(sets, {"tracker": {"path": ""}},
+                 TASKS[task].condition(condition).event_sensor_overrides(), probe_sets,
+                 {"sim": {"episode_s": float(episode_s)}} if episode_s is not None else {})
     return Path(path), sets
 
 

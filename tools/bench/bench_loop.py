@@ -63,8 +63,7 @@ sys.path.insert(0, str(ROOT))
 from sebvs.runtime.profiler import LOOP_TARGETS_MS, ProfileCollector  # noqa: E402
 from sebvs.runtime.supervisor import Supervisor  # noqa: E402
 from sebvs.runtime.topology import load_topology  # noqa: E402
-from sebvs.sensor_pairs import (SENSORS, camera_override, emulator_override,  # noqa: E402
-                                topology_overrides)
+from sebvs.sensor_pairs import SENSORS, topology_overrides  # noqa: E402
 from tools.bench.bench_sim import bench_pipeline, bench_record  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
@@ -81,7 +80,7 @@ TARGETS = {"chain_p50_ms": LOOP_TARGETS_MS["p50"], "chain_p99_ms": LOOP_TARGETS_
            "pipeline_x_real_time": 15.0, "record_x_real_time": 10.0}
 
 
-def bench_closed_loop(seconds: float, warmup_s: float, extra: list[str] = ()) -> dict:
+def bench_closed_loop(seconds: float, warmup_s: float, extra: list = ()) -> dict:
     """nav_policy on the realtime clock for one episode of ``seconds``, profiled.
 
     The headline figures leave out the chains whose state was sent in the first
@@ -241,14 +240,13 @@ def main() -> int:
                  "load_avg_before": list(os.getloadavg())}
     loops = {v: [] for v in VARIANTS}
     pipes, recs, notes = [], [], []
-    loop_sets = topology_overrides(args.sensor) + args.set
-    record_sets = [camera_override(args.sensor), emulator_override(args.sensor), *args.set]
+    loop_sets = [topology_overrides(args.sensor), *args.set]
     parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v] + loop_sets),
               loops[v]) for v in VARIANTS]
     if not args.loop_only:
         parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
-                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=record_sets),
-                   recs)]
+                  ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=args.set,
+                                                  sensor=args.sensor), recs)]
     for r in range(repeats):
         # the variants alternate their order, so a slow phase of the machine hits both
         order = parts[:len(VARIANTS)][::-1 if r % 2 else 1] + parts[len(VARIANTS):]

@@ -294,10 +294,11 @@ def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None 
 
 
 def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
-                 placement: str | None = None, sets: list[str] = ()) -> dict:
+                 placement: str | None = None, sets: list[str] = (),
+                 sensor: str | None = None) -> dict:
     """`sebvs record topologies/nav_record.toml` at `dvs_hz` into a temporary dataset:
     simulated seconds per wall second of the whole command (start-up included). ``sets``:
-    further --set overrides."""
+    further --set overrides; ``sensor``: its --sensor pair."""
     import subprocess
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "sebvs.cli", "record",
@@ -309,6 +310,8 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
             cmd += ["--set", f"topology.placement={json.dumps(placement)}"]
         for text in sets:
             cmd += ["--set", text]
+        if sensor:
+            cmd += ["--sensor", sensor]
         t0 = time.perf_counter()
         done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
         wall = time.perf_counter() - t0

@@ -151,7 +151,7 @@ def main(argv=None) -> int:
                     help="episode length (default: the topologies', nav 30 s, arm 2 s)")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
-    from sebvs.eval.run import TASKS
+    from sebvs.conditions import TASKS
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for task in args.tasks.split(","):

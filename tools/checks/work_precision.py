@@ -58,7 +58,7 @@ EVENT_STUDIES = {"nav": ("events", "events_timing"),
 def settings(quick: bool) -> dict:
     """Every size knob of the studies in one place, so --quick is easy to audit."""
     # Conveyor belt speeds (m/s): 0.08 is the arm scene's default, what arm_record's moving
-    # variant records; 0.25 is the evaluation's "fast" condition (sebvs/eval/run.py). The
+    # variant records; 0.25 is the evaluation's "fast" condition (sebvs/conditions.py). The
     # wrist view spans ~0.8 m of belt in 80 px, so they move the cubes ~8 and ~25 px/s
     # (0.08-0.25 px per 100 Hz sample): the slowest and fastest motion the arm policy sees,
     # and far slower in the image than the nav robot's turns, which is what asks whether
