@@ -42,3 +42,14 @@ def test_a_runnable_block_runs(where, code):
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                           text=True, timeout=180)
     assert done.returncode == 0, f"{where}:\n{done.stdout[-1500:]}\n{done.stderr[-3000:]}"
+
+
+def test_the_answer_is_on_the_first_screen():
+    """The README's first 25 lines hold both make commands and the answer with its link;
+    docs/results.md's first 40 lines hold the verdict table."""
+    readme = (ROOT / "README.md").read_text().splitlines()[:25]
+    text = "\n".join(readme)
+    assert "make demo" in text and "make test" in text
+    assert "**Does an event camera help?**" in text and "(docs/results.md)" in text
+    results = "\n".join((ROOT / "docs" / "results.md").read_text().splitlines()[:40])
+    assert "| task | rate | events ahead | no clear difference | events behind |" in results
