@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tools.eval.compare_evals import read_results  # noqa: E402
+from sebvs.eval.results import read_results  # noqa: E402
 
 CLASSES = ("on target", "off target", "other cube", "between")
 

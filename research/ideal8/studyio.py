@@ -1,7 +1,7 @@
 """What the 8-bit benchmark's closed-loop studies here (study_event_input.py, study_fusion.py)
 share: running `sebvs`, evaluating a policy on the test split (once: a finished evaluation
 is read back), and pairing episodes. Once tools/studyio.py; the metrics' names it reads
-are tools/eval/compare_evals.py's METRICS, which the helpers there use too.
+are sebvs/eval/results.py's METRICS, which the helpers there use too.
 
 An episode is one line of `sebvs eval`'s results.json ("modality", "condition", "scenario",
 "seed", "metrics"). Two policies' episodes pair when they have the same training seed,
@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.metrics import paired_comparison, points  # noqa: E402
-from tools.eval.compare_evals import METRICS  # noqa: E402
+from sebvs.eval.results import METRICS  # noqa: E402
 
 
 def sebvs(*args: str) -> None:

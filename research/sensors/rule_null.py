@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""How often would seed_table.py's rule give a verdict if the two modalities were one policy?
+"""How often would `sebvs eval table`'s rule give a verdict if the two modalities were one policy?
 
     research/sensors/rule_null.py --study nav10,nav30,arm10 [--draws 20000] [--json OUT]
     research/sensors/rule_null.py seed0=DIR seed1=DIR seed2=DIR --a rgb+event --b rgb+diff \\
@@ -11,7 +11,7 @@ alone. This asks how likely that is, by randomisation on the reading's own episo
 each run (training seed), every episode both modalities scored keeps its two outcomes,
 but which of them is A's and which B's is drawn by a fair coin, independently per run and
 episode. That is the null "A and B are the same policy on these episodes". The rule is
-applied to each draw, as seed_table.py applies it.
+applied to each draw, as `sebvs eval table` applies it.
 
 Printed per cell: the observed effect and verdict, the chance of "A helps" and of "A
 hurts" under the null, and for a cell with a verdict the share of draws with that verdict
@@ -39,14 +39,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from tools.eval.seed_table import _by_key, load_runs, scored_pairs, seed_table  # noqa: E402
+from sebvs.eval.results import episodes_by_key as _by_key  # noqa: E402
+from sebvs.eval.table import load_runs, scored_pairs, seed_table  # noqa: E402
 from sebvs.metrics import points  # noqa: E402
 
 
 def paired_outcomes(runs: dict[str, dict], a: str, b: str, metric: str,
                     cells: list[str]) -> dict[str, list[np.ndarray]]:
     """Per cell, per run, the (n, 2) array of A's and B's outcome on each episode both
-    scored: the pairs seed_table.py averages."""
+    scored: the pairs `sebvs eval table` averages."""
     out: dict[str, list[np.ndarray]] = {cell: [] for cell in cells}
     for res in runs.values():
         ea, eb = _by_key(res, a), _by_key(res, b)
@@ -133,7 +134,7 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="*", metavar="NAME=DIR",
-                    help="as seed_table.py: an `sebvs eval --out` directory per training seed")
+                    help="as `sebvs eval table`: an `sebvs eval --out` directory per training seed")
     ap.add_argument("--study", metavar="TASKRATE[,TASKRATE]",
                     help="the sensor study's readings instead of NAME=DIR (nav10, nav30, "
                          "arm10, arm30), each with its plan's rule and metric")

@@ -18,10 +18,10 @@ read, and the CPUs and GL stacks the evaluations ran on (the driver's ledger,
 OUT/steps.jsonl). A rate the plan has not read yet shows how many of its evaluations are
 in, not their figures (--unread-rows shows those too).
 
-Nothing here reads a rule or a prediction of its own: the readings come from seed_table.py's
+Nothing here reads a rule or a prediction of its own: the readings come from `sebvs eval table`'s
 JSON (OUT/read/<task><rate>.json), the predictions are the plan's section "What the physics
 predicts", copied into PREDICTIONS below. A cell the plan lists that has no reading yet is
-shown as "not yet run"; one that seed_table.py left out (a row scored no episode of it)
+shown as "not yet run"; one that `sebvs eval table` left out (a row scored no episode of it)
 as "no reading". The exit code is 0 when every planned cell has a reading, else 3.
 
 --reading TASKRATE prints one reading in full (each training seed's difference, the
@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.metrics import points  # noqa: E402
-from tools.eval.compare_evals import TASK_METRICS, read_results  # noqa: E402
+from sebvs.eval.results import TASK_METRICS, read_results  # noqa: E402
 from research.sensors.sensor_study import (EVAL_GROUPS, LEDGER, PLAN_FILE,  # noqa: E402
                                         PLAN_SEEDS, READ_METRIC, READ_RULE, READINGS,
                                         eval_dir, ledger_machines, plan_steps,
@@ -145,7 +145,7 @@ def task_table(task: str, tables: dict[int, dict | None]) -> tuple[list[str], in
 def reading_detail(task: str, rate: int, table: dict) -> list[str]:
     """One reading in full, for the study's log and a session's note: per cell the effect
     and its interval, each training seed's own difference, the episodes' sign test, the
-    rule's verdict and the plan's prediction; every figure from seed_table.py's JSON, so
+    rule's verdict and the plan's prediction; every figure from `sebvs eval table`'s JSON, so
     that none is typed by hand."""
     runs = table["runs"]
     lines = [f"{task} at {rate} Hz, {table['metric']}: {table['a']} - {table['b']} in points; "

@@ -21,7 +21,7 @@ eval    an evaluation directory with results.json is done (`sebvs eval` itself r
         the finished runs of an interrupted one, unless the ledger says it was
         interrupted on another CPU or GL stack: then it starts again, so that it runs
         whole on one)
-read    tools/eval/seed_table.py per task and rate, RGB+Event against RGB+Diff by the plan's
+read    `sebvs eval table` per task and rate, RGB+Event against RGB+Diff by the plan's
         rule, into OUT/read/<task><rate>.json and .png (nav joins each seed's two
         evaluation groups); research/sensors/sensor_report.py then builds the report's tables
 
@@ -82,7 +82,10 @@ SMOKE_DIR = ROOT / "out" / "study_sensors" / "smoke"
 LEDGER = "steps.jsonl"
 
 # ------------------------------------------------------------------ the plan, as written
-PHYS = ['camera.sensor="physical"', 'emulator.preset="physical"']
+# the frame camera's own sub-frames: the study's frames were made before the one light
+# stream became the default (docs/sensors.md); the topologies pin emulator preset version 1
+PHYS = ['camera.sensor="physical"', 'emulator.preset="physical"',
+        'camera.frame_light="subframes"']
 RANDOMISE = {
     "nav": ('sim.randomise={variant=["indoor","outdoor"], lighting=["nominal","nominal",'
             '"low","dusk","hdr","flicker"], flicker_hz={uniform=[5.0,20.0]}, '
@@ -160,7 +163,7 @@ def eval_dir(out: Path, task: str, rate: int, seed: int, group: str) -> Path:
 
 
 def reading_path(out: Path, task: str, rate: int) -> Path:
-    """Where the read step keeps seed_table.py's JSON of a task and rate (its plot beside)."""
+    """Where the read step keeps `sebvs eval table`'s JSON of a task and rate (its plot beside)."""
     return out / "read" / f"{task}{rate}.json"
 
 
@@ -213,15 +216,14 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
     for task, rate in keys:
         read = reading_path(out, task, rate)
         steps.append(Step("read", f"read {task} {rate} Hz", tuple(
-            [sys.executable, str(ROOT / "tools" / "eval" / "seed_table.py"),
-             *read_arguments(out, task, rate),
-             "--json", str(read), "--plot", str(read.with_suffix(".png"))]),
+            sebvs + ["eval", "table", *read_arguments(out, task, rate), "--json", str(read),
+                     "--plot", str(read.with_suffix(".png")), "--force"]),
             read, task=task, rate=rate))
     return steps
 
 
 def read_arguments(out: Path, task: str, rate: int) -> list[str]:
-    """seed_table.py's arguments for a task and rate's reading: each training seed's
+    """`sebvs eval table`'s arguments for a task and rate's reading: each training seed's
     evaluations (NAME=DIR), the plan's rule and metric."""
     runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
             for g, _, _ in EVAL_GROUPS[task]]

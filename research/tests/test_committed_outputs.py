@@ -1,5 +1,5 @@
 """The sensor study's results stay reproducible from what research/sensors/outputs/ commits:
-each reading (read/<task><rate>.json) is what tools/eval/seed_table.py makes again from
+each reading (read/<task><rate>.json) is what `sebvs eval table` makes again from
 the committed evaluations with the plan's rule, and the tables docs/results.md opens with
 are what sensor_report.py makes again from them. Nothing is trained or evaluated: a few
 seconds of reading JSON."""
@@ -10,7 +10,7 @@ import json
 import pytest
 
 from research.tests.study_loader import RESEARCH, study_module
-from tests.tools_loader import tool_module
+from tests.eval_readers import reader
 
 ROOT = RESEARCH.parent
 READINGS = ("nav10", "nav30", "arm10", "arm30")
@@ -19,7 +19,7 @@ READINGS = ("nav10", "nav30", "arm10", "arm30")
 @pytest.mark.parametrize("name", READINGS)
 def test_each_committed_reading_is_what_the_committed_evaluations_give(name, tmp_path):
     with study_module("sensors/sensor_study") as study, \
-            tool_module("eval/seed_table") as seeds:
+            reader("table") as seeds:
         task, rate = study.READINGS[name]
         again = tmp_path / f"{name}.json"
         # the read step's own arguments (sensor_study.py plan prints them), minus the plot

@@ -4,9 +4,9 @@ import json
 import numpy as np
 import pytest
 
-from tests.test_seed_table import results
+from tests.test_eval_table import results
 from research.tests.study_loader import study_module
-from tests.tools_loader import tool_module
+from tests.eval_readers import reader
 
 
 def three_runs():
@@ -52,7 +52,7 @@ def test_the_pairs_are_the_ones_the_seed_table_averages():
     runs = three_runs()
     runs["s2"] = results({"fast/multi": [True, False, None, True]},
                          {"fast/multi": [False, False, True, None]})
-    with tool_module("eval/seed_table") as seeds, study_module("sensors/rule_null") as tool:
+    with reader("table") as seeds, study_module("sensors/rule_null") as tool:
         table = seeds.seed_table(runs, "rgb+event", "rgb")
         pairs = tool.paired_outcomes(runs, "rgb+event", "rgb", "grasp_success",
                                      list(table["cells"]))

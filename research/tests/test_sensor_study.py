@@ -6,7 +6,7 @@ import shutil
 import pytest
 
 from research.tests.study_loader import study_module
-from tests.tools_loader import tool_module
+from tests.eval_readers import reader
 
 
 @pytest.fixture(autouse=True)
@@ -77,7 +77,7 @@ def test_the_report_reads_the_rule_against_the_plans_predictions(tmp_path, capsy
     have no scored episode under flicker: helps (predicted: held), no clear difference
     (held), no reading; the 30 Hz column and the arm are not yet run."""
     with study_module("sensors/sensor_study") as study, \
-            tool_module("eval/seed_table") as seeds, \
+            reader("table") as seeds, \
             study_module("sensors/sensor_report") as rep:
         runs = {}
         for seed in (0, 1, 2):

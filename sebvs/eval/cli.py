@@ -41,6 +41,10 @@ def _cmd_eval(args) -> int:
     from .plan import EvalPlan
     from .report import never_acted, output_files
     from .run import evaluate
+    if args.out is None:
+        print("sebvs eval: --out is required (the evaluation's output directory); "
+              "`sebvs eval compare` and `sebvs eval table` read evaluations", file=sys.stderr)
+        return 2
     scenarios = [s for s in args.scenarios.split(",") if s] if args.scenarios else None
     try:
         conditions = conditions_of(args.conditions, args.task, args.sensor)
@@ -172,10 +176,108 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "camera runs at it too, capped at its sensor's top rate")
     e.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="extra topology overrides for every run (results.json keeps them)")
-    e.add_argument("--out", required=True,
-                   help="output directory: new, empty, or an earlier evaluation's (it "
+    e.add_argument("--out", default=None,
+                   help="output directory (required to evaluate): new, empty, or an earlier evaluation's (it "
                         "resumes); never a dataset or the checkpoint folder")
     e.add_argument("--force", action="store_true",
                    help="write into a folder that holds other files and no evaluation")
     add_fanout_arguments(e, "evaluation's runs and episodes")
     e.set_defaults(func=_cmd_eval)
+    readers = e.add_subparsers(dest="eval_cmd", metavar="[compare | table]", required=False,
+                               help="read evaluations instead of running one")
+    _register_compare(readers)
+    _register_table(readers)
+
+
+def _cmd_compare(args) -> int:
+    from .compare import compare, markdown
+    from .results import read_results
+    names = tuple(n.strip() for n in args.names.split(","))
+    if len(names) != 2 or not all(names):
+        print(f"sebvs eval compare: --names takes two comma-separated labels, got "
+              f"{args.names!r}", file=sys.stderr)
+        return 2
+    try:
+        comparison = compare(read_results(args.a), read_results(args.b),
+                             args.modalities.split(",") if args.modalities else None)
+        _check_new(args.json, force=args.force)
+    except (ValueError, FileExistsError) as exc:
+        print(f"sebvs eval compare: {exc}", file=sys.stderr)
+        return 2
+    print(markdown(comparison, names), end="")
+    if args.json:
+        _write_json(args.json, {"a": str(args.a), "b": str(args.b), "names": names,
+                                **comparison})
+    return 0
+
+
+def _cmd_table(args) -> int:
+    from .table import load_runs, markdown, plot, seed_table
+    try:
+        table = seed_table(load_runs(args.runs), args.a, args.b, args.metric,
+                           args.min_diff, args.min_ahead)
+        _check_new(args.json, args.plot, force=args.force)
+    except (ValueError, FileExistsError) as exc:
+        print(f"sebvs eval table: {exc}", file=sys.stderr)
+        return 2
+    print(markdown(table), end="")
+    if args.json:
+        _write_json(args.json, table)
+    if args.plot:
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        plot(table, args.plot)
+    return 0
+
+
+def _check_new(*paths: Path | None, force: bool = False) -> None:
+    """The files a reader writes are new, or it was told to replace them (--force)."""
+    for path in paths:
+        if path is not None and path.exists() and not force:
+            raise FileExistsError(f"{path} exists: give another path, or --force to "
+                                  f"replace it")
+
+
+def _write_json(path: Path, data: dict) -> None:
+    import json
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n")
+
+
+def _register_compare(readers: argparse._SubParsersAction) -> None:
+    from . import compare
+    c = readers.add_parser("compare", help="two evaluations of the same episodes, paired",
+                           description=compare.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("a", type=Path, help="evaluation A: an `sebvs eval --out` directory "
+                                        "(or its results.json)")
+    c.add_argument("b", type=Path, help="evaluation B, of the same task and topology seed")
+    c.add_argument("--modalities", help="comma-separated (default: every modality both "
+                                        "hold, expert and no_action included)")
+    c.add_argument("--names", default="A,B", help="two labels for the tables (default A,B)")
+    c.add_argument("--json", type=Path, help="also write the comparison here (a new file)")
+    c.add_argument("--force", action="store_true", help="replace a --json file that exists")
+    c.set_defaults(func=_cmd_compare)
+
+
+def _register_table(readers: argparse._SubParsersAction) -> None:
+    from . import table
+    t = readers.add_parser("table", help="training seeds of two modalities, per cell, "
+                                         "read by a rule given beforehand",
+                           description=table.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    t.add_argument("runs", nargs="+", metavar="NAME=DIR",
+                   help="an `sebvs eval --out` directory per training seed (a NAME given "
+                        "again adds a directory to that seed's run; NAME@TAG=DIR names its "
+                        "modalities MODALITY@TAG)")
+    t.add_argument("--a", required=True, help="modality A (e.g. rgb+event)")
+    t.add_argument("--b", required=True, help="modality B (e.g. rgb)")
+    t.add_argument("--metric", help="episode metric (default: the task's first)")
+    t.add_argument("--min-diff", type=float, default=10.0,
+                   help="points of mean difference for a reading (default 10)")
+    t.add_argument("--min-ahead", type=int,
+                   help="runs that must agree for a reading (default: all)")
+    t.add_argument("--json", type=Path, help="also write the table here (a new file)")
+    t.add_argument("--plot", type=Path, help="also draw the differences here (a new PNG)")
+    t.add_argument("--force", action="store_true",
+                   help="replace --json / --plot files that exist")
+    t.set_defaults(func=_cmd_table)

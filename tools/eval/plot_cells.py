@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from sebvs.eval.run import BASELINE  # noqa: E402
-from tools.eval.compare_evals import TASK_METRICS, read_results  # noqa: E402
+from sebvs.eval.results import TASK_METRICS, read_results  # noqa: E402
 
 METRIC_LABELS = {m: label for metrics in TASK_METRICS.values() for m, label in metrics}
 

@@ -1,9 +1,9 @@
-"""tools/eval/seed_table.py: training seeds of two modalities on the same episodes, per cell."""
+"""`sebvs eval table` (sebvs/eval/table.py): training seeds of two modalities on the same episodes, per cell."""
 import json
 
 import pytest
 
-from tests.tools_loader import tool_module
+from tests.eval_readers import reader
 
 
 def results(a_wins: dict[str, list], b_wins: dict[str, list], seed: int = 7) -> dict:
@@ -29,7 +29,7 @@ def test_a_reading_needs_the_mean_and_every_run(tmp_path):
                       {"fast/multi": [True] * 8 + [False] * 2,
                        "nominal/multi": [True] * 9 + [False]}),
     }
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         table = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10)
         md = tool.markdown(table)
     fast, nominal = table["cells"]["fast/multi"], table["cells"]["nominal/multi"]
@@ -42,7 +42,7 @@ def test_a_reading_needs_the_mean_and_every_run(tmp_path):
     assert nominal["mean_diff"] == pytest.approx(0.15) and nominal["behind"] == 1
     assert nominal["reading"] == "no clear difference"     # the mean alone is not enough
     assert "| fast/multi | +30.0 | +20.0 | 100.0 | 75.0 | +25.0 | 2 / 0 |" in md
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         loose = tool.seed_table(runs, "rgb+event", "rgb", min_diff=10, min_ahead=1)
     assert loose["cells"]["nominal/multi"]["reading"] == "rgb+event helps"
 
@@ -52,7 +52,7 @@ def test_ungraspable_episodes_are_left_out_and_bad_runs_refused(tmp_path):
                           {"moving/single": [False, None, True]}),
             "s1": results({"moving/single": [True, None, False]},
                           {"moving/single": [True, None, False]})}
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         cell = tool.seed_table(runs, "rgb+event", "rgb")["cells"]["moving/single"]
         assert cell["per_run"]["s0"]["n"] == 2 and cell["episodes"]["n"] == 2
         assert cell["mean_diff"] == pytest.approx(0.25)
@@ -99,7 +99,7 @@ def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
             (d / "results.json").write_text(json.dumps(only(res, modality)))
     out = tmp_path / "t.json"
     spec = [f"{n}={tmp_path / (n + '-' + m)}" for n in runs for m in ("rgb+event", "rgb")]
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         assert tool.main([*spec, "--a", "rgb+event", "--b", "rgb", "--json", str(out)]) == 0
         joined = json.loads(out.read_text())["cells"]["fast/multi"]
         assert joined == tool.seed_table(runs, "rgb+event", "rgb")["cells"]["fast/multi"]
@@ -111,7 +111,7 @@ def test_a_run_may_join_directories_that_each_hold_some_modalities(tmp_path):
                              ("y", {**only(runs["s0"], "rgb+event"), "seed": 9})])
 
 
-def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
+def test_a_tag_compares_one_modality_under_two_settings(tmp_path, capsys):
     """NAME@TAG=DIR: the same modality from two directories (two sensors), paired by seed."""
     def rgb_only(wins):
         return results({}, {"fast/multi": wins})
@@ -125,10 +125,16 @@ def test_a_tag_compares_one_modality_under_two_settings(tmp_path):
             (d / "results.json").write_text(json.dumps(rgb_only(wins)))
             spec.append(f"{name}{'@' + tag if tag else ''}={d}")
     out = tmp_path / "t.json"
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out)]) == 0
-        with pytest.raises(SystemExit):
-            tool.main([f"s0@={tmp_path / 's0'}", "--a", "rgb", "--b", "rgb"])
+        capsys.readouterr()
+        assert tool.main([f"s0@={tmp_path / 's0'}", "--a", "rgb", "--b", "rgb"]) == 2
+        assert "a run is NAME=DIR or NAME@TAG=DIR, got 's0@=" in capsys.readouterr().err
+        # the files a reader writes are its own: an existing one needs --force
+        assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out)]) == 2
+        assert "t.json exists" in capsys.readouterr().err
+        assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out),
+                          "--force"]) == 0
         assert tool.tagged(rgb_only([True]), "")["episodes"][0]["modality"] == "rgb"
     cell = json.loads(out.read_text())["cells"]["fast/multi"]
     assert cell["per_run"]["s0"]["diff"] == pytest.approx(2 / 3)
@@ -145,7 +151,7 @@ def test_a_mean_that_sums_to_zero_prints_plus_zero():
     table = {"a": "rgb+event", "b": "rgb+diff", "runs": ["s0", "s1", "s2"], "metric": "m",
              "rule": {"min_diff_points": 10, "min_ahead": 3}, "cells": {"x/y": cell},
              "left_out": []}
-    with tool_module("eval/seed_table") as tool:
+    with reader("table") as tool:
         row = tool.markdown(table).splitlines()[-1]
     assert row == ("| x/y | -5.0 | +5.0 | +0.0 | 90.0 | 90.0 | +0.0 | 1 / 1 | [-5.0, +5.0], 1 "
                    "| no clear difference |")

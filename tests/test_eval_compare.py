@@ -1,4 +1,4 @@
-"""tools/eval/compare_evals.py: two evaluations pair on (modality, condition, scenario, episode
+"""`sebvs eval compare` (sebvs/eval/compare.py): two evaluations pair on (modality, condition, scenario, episode
 seed); evaluations of other episodes, and files that are not results.json, are refused by
 name; a cell only one side holds is named, not paired."""
 import json
@@ -6,12 +6,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.tools_loader import tool_module
+from tests.eval_readers import reader
 
 
 @pytest.fixture(scope="module")
 def tool():
-    with tool_module("eval/compare_evals") as module:
+    with reader("compare") as module:
         yield module
 
 

@@ -1,42 +1,25 @@
-#!/usr/bin/env python3
 """Training seeds of two modalities on the same episodes: is A ahead of B in a cell because
-of the modality, or because of one training run?
+of the modality, or because of one training run? (`sebvs eval table`)
 
-    tools/eval/seed_table.py seed0=out/arm_lead/eval_lead seed1=out/arm_lead/eval_seed1 \\
-        seed2=out/arm_lead/eval_seed2 --a rgb+event --b rgb --min-diff 10 --json out/seeds.json \\
-        --plot docs/figures/seeds.png
+    from sebvs.eval.table import load_runs, markdown, seed_table
+    runs = load_runs(["seed0=out/eval_s0", "seed1=out/eval_s1", "seed2=out/eval_s2"])
+    print(markdown(seed_table(runs, "rgb+event", "rgb", min_diff=10)))
 
 Each NAME=DIR is an `sebvs eval --out` directory holding modalities A and B trained with
-one seed; a NAME given again joins another directory to that run (where its modalities
-or its cells were evaluated apart; each cell of a modality in one of them). NAME@TAG=DIR
-renames that directory's modalities to MODALITY@TAG, so that one modality under two
-settings can be compared (a sensor, a recipe: --a event@fr --b event). All must have
-played the same task and topology seed (the same episodes).
-
-Per condition and scenario, one row: each run's A - B (points, over the episodes both
-scored), the mean over runs of A, B and A - B, how many runs have A ahead, and a paired
-test over the episodes of the outcomes averaged over the runs (the episode is the unit:
-bootstrap 95 % interval and exact sign test, sebvs/metrics.py paired_comparison).
-
-The reading column applies a rule given before the runs are read: "A helps" where the
-mean difference is >= --min-diff points AND A is ahead in at least --min-ahead runs
-(default: all of them), "A hurts" where the mirror holds, else "no clear difference".
-Metric: the task's first (arm grasp success over graspable episodes, nav the paper rate),
-or --metric.
+one seed; a NAME given again joins another directory to that run; NAME@TAG=DIR renames
+that directory's modalities MODALITY@TAG (one modality under two settings). Per cell one
+row: each run's A - B, the means over runs, how many runs have A ahead, and a paired test
+over the episodes of the outcomes averaged over the runs (sebvs/metrics.py
+paired_comparison). The reading applies a rule given before the runs are read: "A helps"
+where the mean difference is >= min_diff points AND A is ahead in >= min_ahead runs.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-from sebvs.metrics import paired_comparison, points  # noqa: E402
-from tools.eval.compare_evals import METRICS, TASK_METRICS, _by_key, read_results  # noqa: E402
+from ..metrics import paired_comparison, points
+from .results import episodes_by_key, read_results, task_metrics
 
 
 def _scored(episodes: dict, key, metric: str) -> float | None:
@@ -65,8 +48,19 @@ class RunSpecError(ValueError):
 
 
 def load_runs(specs: list[str]) -> dict[str, dict]:
-    """The NAME=DIR (or NAME@TAG=DIR) arguments as {name: results}, each name's
-    directories merged (merge_runs). ValueError names the run that is wrong and why."""
+    """The runs named on the command line, each name's directories merged (merge_runs).
+
+    Parameters:
+        specs: NAME=DIR or NAME@TAG=DIR strings, DIR an `sebvs eval --out` directory.
+
+    Returns:
+        {name: results.json dict}, in the order the names first appear.
+
+    Raises:
+        RunSpecError: a spec that is not NAME=DIR or NAME@TAG=DIR.
+        ValueError: naming the run, where a directory is not an evaluation or its
+            directories do not join (merge_runs).
+    """
     parts: dict[str, list[tuple[str, dict]]] = {}
     for spec in specs:
         label, sep, path = spec.partition("=")
@@ -111,8 +105,24 @@ def merge_runs(parts: list[tuple[str, dict]]) -> dict:
 
 def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
                min_diff: float = 10.0, min_ahead: int | None = None) -> dict:
-    """{"metric", "runs", "cells": {"condition/scenario": {...}}} for modalities a and b
-    over the evaluations in ``runs`` (name -> results.json dict)."""
+    """Modality A against B per cell, over the training runs.
+
+    Parameters:
+        runs: {run name: results.json dict}, at least two, of one task and topology seed.
+        a, b: the modalities compared (each in every run).
+        metric: the episode metric (None: the task's first).
+        min_diff: points of mean difference the rule needs for a reading.
+        min_ahead: runs that must agree for a reading (None: all of them).
+
+    Returns:
+        {"metric", "a", "b", "runs", "rule", "cells": {"condition/scenario": {"per_run",
+        "mean_a", "mean_b", "mean_diff", "ahead", "behind", "episodes", "reading"}},
+        "left_out": cells some run scored none of}.
+
+    Raises:
+        ValueError: fewer than two runs, runs of other episodes, a modality a run lacks,
+            or min_ahead outside 1..len(runs).
+    """
     if len(runs) < 2:
         raise ValueError(f"give at least two runs (training seeds), got {len(runs)}")
     first = next(iter(runs.values()))
@@ -126,11 +136,11 @@ def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
             if m not in held:
                 raise ValueError(f"run {name!r} holds no {m!r} episodes "
                                  f"(it holds {', '.join(sorted(held)) or 'none'})")
-    metric = metric or TASK_METRICS.get(first.get("task"), METRICS)[0][0]
+    metric = metric or task_metrics(first)[0][0]
     need = len(runs) if min_ahead is None else min_ahead
     if not 1 <= need <= len(runs):
-        raise ValueError(f"--min-ahead must be between 1 and {len(runs)}, got {need}")
-    by_run = {n: (_by_key(r, a), _by_key(r, b)) for n, r in runs.items()}
+        raise ValueError(f"min_ahead must be between 1 and {len(runs)}, got {need}")
+    by_run = {n: (episodes_by_key(r, a), episodes_by_key(r, b)) for n, r in runs.items()}
     cells = sorted({k[:2] for ea, _ in by_run.values() for k in ea})
     out: dict = {"metric": metric, "a": a, "b": b, "runs": list(runs),
                  "rule": {"min_diff_points": min_diff, "min_ahead": need}, "cells": {},
@@ -170,6 +180,14 @@ def seed_table(runs: dict[str, dict], a: str, b: str, metric: str | None = None,
 
 
 def markdown(table: dict) -> str:
+    """seed_table()'s result as one Markdown table, the rule in its first line.
+
+    Parameters:
+        table: what seed_table() returned.
+
+    Returns:
+        The table, then a line naming the cells left out (if any).
+    """
     a, b, runs = table["a"], table["b"], table["runs"]
     lines = [f"{a} - {b}, {table['metric']}, points; rule: mean >= "
              f"{table['rule']['min_diff_points']:g} and ahead in >= "
@@ -192,7 +210,12 @@ def markdown(table: dict) -> str:
 
 def plot(table: dict, path: Path) -> None:
     """Per cell, A - B in points: a bar for the mean over runs, a dot per run, the
-    episodes' 95 % interval as a line; cells coloured by their reading."""
+    episodes' 95 % interval as a line; cells coloured by their reading.
+
+    Parameters:
+        table: what seed_table() returned.
+        path: the PNG to write.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -217,46 +240,3 @@ def plot(table: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", metavar="NAME=DIR",
-                    help="an `sebvs eval --out` directory per training seed (a NAME given "
-                         "again adds a directory to that seed's run; NAME@TAG=DIR names its "
-                         "modalities MODALITY@TAG)")
-    ap.add_argument("--a", required=True, help="modality A (e.g. rgb+event)")
-    ap.add_argument("--b", required=True, help="modality B (e.g. rgb)")
-    ap.add_argument("--metric", help="episode metric (default: the task's first)")
-    ap.add_argument("--min-diff", type=float, default=10.0,
-                    help="points of mean difference for a reading (default 10)")
-    ap.add_argument("--min-ahead", type=int,
-                    help="runs that must agree for a reading (default: all)")
-    ap.add_argument("--json", type=Path, help="also write the table here")
-    ap.add_argument("--plot", type=Path, help="also draw the differences here (PNG)")
-    args = ap.parse_args(argv)
-    try:
-        runs = load_runs(args.runs)
-    except RunSpecError as exc:
-        ap.error(str(exc))
-    except ValueError as exc:
-        print(f"seed_table: {exc}", file=sys.stderr)
-        return 2
-    try:
-        table = seed_table(runs, args.a, args.b, args.metric, args.min_diff, args.min_ahead)
-    except ValueError as exc:
-        print(f"seed_table: {exc}", file=sys.stderr)
-        return 2
-    print(markdown(table), end="")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(table, indent=1) + "\n")
-    if args.plot:
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        plot(table, args.plot)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
