@@ -10,9 +10,15 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
   raw      emulator (optional, used with raw_events = true): arrays["events"] structured
            (x, y, t, p) packets; the packets up to and including a control tick's packet
            are that tick's raw events (the accumulator's window ends there too)
+  proprio  sim (optional): arrays["proprio"] (D,) float32 at each control tick, meta names:
+           the robot's proprioception (sebvs/sim/proprio.py), stored as the dataset
+           `proprio` [T, D] with the attribute proprio_names
   action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
+raw_events = true with no `raw` input wired is refused when the topology loads, in one line
+naming the input to wire (nothing else would record raw events: the accumulator sends
+frames only).
 `LockstepRecorder` also has an output `action`: the expert's action of a tick, passed on
 once that tick's row is complete. Wire the sim's action to it in lockstep and the sim waits
 for the whole recorded chain (emulator and accumulator included), not only for the expert:
@@ -46,7 +52,7 @@ from sebvs.data.recording import (WRITE_STOPPED, EpisodeRecorder, SpaceReserve, 
 from sebvs.runtime import Actor, Message, Range
 from sebvs.runtime.topology import TopologyError, apply_overrides
 
-STREAMS = ("rgb", "events", "raw", "action")
+STREAMS = ("rgb", "events", "raw", "proprio", "action")
 # file attribute <- accumulator meta key (either spelling)
 EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params",
                "event_sensor": "sensor", "event_output": "output",
@@ -74,7 +80,25 @@ def emulator_params(topology: dict) -> dict:
 
 
 class Recorder(Actor):
-    inputs = ("rgb", "events", "raw", "action", "episode")
+    inputs = ("rgb", "events", "raw", "proprio", "action", "episode")
+
+    @classmethod
+    def check_wiring(cls, params: "Recorder.Params", connected: frozenset) -> str | None:
+        """What the parameters ask for that the wiring cannot give. The topology loader
+        refuses such a topology before a process starts.
+
+        Parameters:
+            params: the recorder's parameters as the topology sets them.
+            connected: the names of its wired inputs.
+
+        Returns:
+            One line naming the missing input and how to wire it, or None.
+        """
+        if params.raw_events and "raw" not in connected:
+            return ("raw_events = true, but the input 'raw' is not wired: nothing would "
+                    "record raw events; wire it to the emulator's events, e.g. --set "
+                    "'recorder.inputs.raw={from=\"emulator/events\", queue=256}'")
+        return None
 
     @dataclass
     class Params:
@@ -100,6 +124,9 @@ class Recorder(Actor):
         missing = {"rgb", "action", "episode"} - self.connected
         if missing:
             raise ValueError(f"recorder needs inputs {sorted(missing)} connected")
+        problem = self.check_wiring(p, frozenset(self.connected))
+        if problem:         # a topology built without the loader
+            raise ValueError(f"recorder: {problem}")
         self.streams = frozenset(s for s in STREAMS if s in self.connected
                                  and (s != "raw" or p.raw_events))
         self.raw_packets: list[np.ndarray] = []
@@ -175,6 +202,11 @@ class Recorder(Actor):
                 fields["attrs"] = row["events"]["attrs"]
         if "raw" in row:
             fields["raw_events"] = row["raw"]["raw"]
+        if "proprio" in row:
+            fields["proprio"] = row["proprio"]["proprio"]
+            if row["proprio"]["names"]:
+                fields["attrs"] = {**fields.get("attrs", {}),
+                                   "proprio_names": row["proprio"]["names"]}
         self._finished(self._write(self.rec.row, tick, **fields))
 
     async def on_rgb(self, msg: Message) -> None:
@@ -210,6 +242,15 @@ class Recorder(Actor):
         packets, self.raw_packets = self.raw_packets, []
         ev = np.concatenate(packets) if packets else np.zeros(0, RAW_DTYPE)
         await self._take("raw", msg, {"raw": {k: ev[k] for k in "xytp"}})
+
+    async def on_proprio(self, msg: Message) -> None:
+        if msg.meta.get("control") is False:
+            self.skipped["not_control"] += 1
+            return
+        names = msg.meta.get("names")
+        await self._take("proprio", msg, {
+            "proprio": np.array(msg.arrays["proprio"], np.float32),
+            "names": [str(n) for n in names] if isinstance(names, (list, tuple)) else None})
 
     async def on_action(self, msg: Message) -> None:
         key = "action" if "action" in msg.arrays else "pose"

@@ -10,6 +10,12 @@ Output `state`    scene.state() arrays (qpos, mocap_pos, mocap_quat, ...), publi
                   sim's params are the one source of the scene config). tick = the current
                   control tick (global, counts across episodes); t_sim = simulated seconds
                   since the run started (monotonic across episodes).
+Output `proprio`  arrays["proprio"] float32 (D,): the robot's proprioception at each control
+                  tick's sample (sebvs/sim/proprio.py: nav odometry [v_forward, v_lateral,
+                  yaw_rate], arm the six joint angles and two finger positions; the
+                  Gymnasium environments' observation "proprio"), the tick and t_sim of that
+                  state sample. meta: names (one per component), episode. Sent only where a
+                  topology consumes it (the recorder: observation.state of a dataset).
 Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps;
                   end also t_ep, outcome: scene.finish()'s result (the arm's grasp of
                   its last command), {} after a divergence or a stop, and health: the
@@ -58,7 +64,7 @@ from sebvs.sim.stepper import NOISE_STREAM, SceneStepper, episode_seed  # noqa: 
 
 class Sim(Actor):
     inputs = ("action",)
-    outputs = ("state", "episode")
+    outputs = ("state", "proprio", "episode")
 
     @dataclass
     class Params:
@@ -256,6 +262,8 @@ class Sim(Actor):
                 data = core.data
                 await self.emit("state", core.scene.state(data), meta=core.sample_meta(k),
                                 t_sim=self.t_offset + data.time, tick=self.tick)
+                if control and "proprio" in self.consumed:
+                    await self._emit_proprio(k)
                 if control and self.deadlines is not None and not core.at_end:
                     self._tick_published()
                 if control and not core.at_end:
@@ -300,6 +308,20 @@ class Sim(Actor):
         self.log.info("episode %d (seed %d) ended: %s after %d steps%s", k, seed, reason, step,
                       f"; {outcome['outcome']}" if "outcome" in outcome else "")
         self.t_offset += t_ep
+
+    async def _emit_proprio(self, k: int) -> None:
+        """The control sample's proprioception, stamped as its state sample."""
+        core = self.core
+        if getattr(self, "_proprio_model", None) is not core.model:   # a scene rebuilt
+            from sebvs.sim.proprio import proprio_reader
+            self._proprio = proprio_reader(core.scene_name, core.scene, core.model)
+            self._proprio_model = core.model
+        reader = self._proprio
+        # float32, as the environments' observation gives it: a row of a recording and the
+        # env's observation of that tick are the same numbers
+        await self.emit("proprio", {"proprio": reader.read(core.data).astype(np.float32)},
+                        meta={"names": list(reader.names), "episode": k, "control": True},
+                        t_sim=self.t_offset + core.data.time, tick=self.tick)
 
     def _open_health(self) -> None:
         self.ep_first_tick = self.tick + 1

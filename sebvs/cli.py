@@ -10,6 +10,8 @@ import signal
 import sys
 import tomllib
 
+from .shipped import topology_argument
+
 # subcommand modules with a `register(subparsers)`; each adds its own commands
 PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli",
            "sebvs.view.cli")
@@ -180,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Start every actor of a topology in its own process, "
                                    "wait until all are ready, start the clock, and supervise "
                                    "until --for elapses, Ctrl-C, or an actor ends the run.")
-    r.add_argument("topology", help="topology TOML file")
+    r.add_argument("topology", type=topology_argument, help="topology TOML file")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="override a parameter (value read as TOML; repeatable)")
     r.add_argument("--for", dest="duration", type=_seconds, default=None, metavar="SECONDS",
@@ -199,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=_cmd_run)
 
     g = sub.add_parser("graph", help="show a topology's graph, pruned actors marked")
-    g.add_argument("topology")
+    g.add_argument("topology", type=topology_argument)
     g.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE")
     g.add_argument("--dot", action="store_true", help="print Graphviz DOT instead of text")
     g.set_defaults(func=_cmd_graph)

@@ -31,9 +31,11 @@ from pathlib import Path
 
 from sebvs.runtime.overrides import lookup, merge
 from sebvs.sensor_pairs import camera_override, check_sensor, emulator_override
+from sebvs.shipped import shipped_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-TOPOLOGIES = ROOT / "topologies"
+# the checkout's topologies/, or a wheel's copy of them (sebvs/shipped.py)
+TOPOLOGIES = shipped_dir("topologies")
 # mains lamps flicker at twice the supply frequency; rendered at 100 Hz a 100 Hz flicker
 # aliases to a constant level and 120 Hz to a 20 Hz beat, so those conditions render at 1 kHz
 MAINS_RENDER_HZ = 1000.0

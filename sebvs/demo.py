@@ -18,6 +18,7 @@ from .runtime.profiler import ProfileCollector, format_loop_latency, format_repo
 from .runtime.supervisor import RunFailed, Supervisor
 from .runtime.topology import load_topology
 from .sensor_pairs import SENSORS, topology_overrides
+from .shipped import topology_argument
 
 
 def _format_metrics(records: list[dict]) -> str:
@@ -160,7 +161,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "profiler attached; optionally swap the policy's modality "
                                    "after --swap-after control ticks; print per-hop latency "
                                    "and the tracker's metrics per episode and modality.")
-    d.add_argument("topology")
+    d.add_argument("topology", type=topology_argument)
     d.add_argument("--sensor", choices=SENSORS, default=None,
                    help="run this sensor pair with the checkpoints trained on it: physical "
                         "(the shipped topologies' own) or ideal8 (the 8-bit benchmark before "

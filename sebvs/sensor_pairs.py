@@ -52,8 +52,11 @@ def sensor_overrides(name: str) -> dict:
 
 
 def checkpoint_dir(name: str) -> str:
-    """Where the shipped checkpoints trained on this pair are (relative to the repository)."""
-    return _CHECKPOINTS[check_sensor(name)]
+    """Where the shipped checkpoints trained on this pair are: relative to the working
+    directory where it has them (a checkout, as always), else the installation's own
+    (sebvs/shipped.py: a wheel's copy, or the checkout beside the package)."""
+    from sebvs.shipped import shipped_path
+    return str(shipped_path(_CHECKPOINTS[check_sensor(name)]))
 
 
 def topology_overrides(name: str) -> dict:

@@ -188,7 +188,7 @@ def test_reset_continues_the_run_and_a_seed_restarts_it():
     sim_seed = Topology(path=None, name="t", seed=4).actor_seed("sim")
     assert seeds == [episode_seed(sim_seed, k) for k in range(3)]
     _, info = env.reset(seed=4, options={"episode": 2})
-    assert info["seed"] == seeds[2] and info["episode"] == 2
+    assert info["seed"] == seeds[2] and info["episode_index"] == 2
     env.close()
 
 

@@ -10,6 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # lower index = lower layer; a package may import only from strictly lower layers
 LAYERS = (
+    # where the shipped topologies and checkpoints are (a checkout's, or a wheel's copy)
+    {"sebvs.shipped"},
     # the one-line hint for a missing optional extra; the two sensor pairs' overrides;
     # a dataset's files and their check against its index; HDF5 errors that name their file
     {"sebvs.extras", "sebvs.sensor_pairs", "sebvs.dataset_files", "sebvs.h5named"},

@@ -3,9 +3,13 @@
 For each indexed episode: the file exists, its sha256 and byte size match, it opens, its
 datasets have consistent lengths and shapes (rgb [T,H,W,3] uint8, events/frame [T,2K,h,w],
 target [T,2|6], t_sim/tick/latency [T], ticks increasing), T equals the index's frame
-count, and the required attributes are present. Also reported: ``*.partial`` files (lost
-in-progress episodes: never used), episode files that the index does not list, and an
-index that is missing or unreadable. Any problem makes the exit code non-zero.
+count, and the required attributes are present; where an episode holds proprioception
+(``proprio`` [T, D]), its rows, their finiteness and its ``proprio_names``. Also reported:
+``*.partial`` files (lost in-progress episodes: never used), episode files that the index
+does not list, and an index that is missing or unreadable. Any problem makes the exit code
+non-zero. Episodes without proprioception (recorded before the recorder stored it) are
+named in a note, not a problem: they train as before, but a dataset's
+``observation.state`` cannot be filled from them.
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ class CheckReport:
     problems: list[str] = field(default_factory=list)     # "<file>: <what>"
     lost: list[str] = field(default_factory=list)         # .partial leftovers
     unindexed: list[str] = field(default_factory=list)
+    no_proprio: list[str] = field(default_factory=list)   # readable, no proprioception
 
     @property
     def ok(self) -> bool:
@@ -37,6 +42,13 @@ class CheckReport:
         out += [f"{name}: lost in-progress episode (.partial left by a crash; not used)"
                 for name in self.lost]
         out += [f"{name}: episode file not in {INDEX} (not used)" for name in self.unindexed]
+        if self.no_proprio:
+            shown = ", ".join(self.no_proprio[:5]) + (", ..." if len(self.no_proprio) > 5
+                                                      else "")
+            out.append(f"note: {len(self.no_proprio)} of {self.episodes} episode(s) hold no "
+                       f"proprioception (recorded before the recorder stored it, or without "
+                       f"sim/proprio wired): observation.state cannot be filled from them "
+                       f"({shown})")
         verdict = "OK" if self.ok else \
             f"{len(self.problems)} problem(s), {len(self.lost)} lost, " \
             f"{len(self.unindexed)} unindexed"
@@ -45,8 +57,10 @@ class CheckReport:
         return out
 
 
-def check_episode(path: Path, entry: dict, task: str | None) -> list[str]:
-    """Problems of one indexed episode file (empty list: fine)."""
+def check_episode(path: Path, entry: dict, task: str | None,
+                  notes: dict | None = None) -> list[str]:
+    """Problems of one indexed episode file (empty list: fine); `notes`, when given, gets
+    "no_proprio": True for a readable episode without proprioception."""
     name = entry.get("file", path.name)
     if not path.exists():
         return [f"{name}: missing (listed in {INDEX})"]
@@ -60,6 +74,8 @@ def check_episode(path: Path, entry: dict, task: str | None) -> list[str]:
     try:
         with open_episode(path) as ep:
             problems += _check_contents(name, ep, entry, task)
+            if notes is not None and ep.proprio is None:
+                notes["no_proprio"] = True
     except Exception as exc:        # h5py raises OSError, KeyError, ValueError...
         problems.append(f"{name}: cannot be read ({type(exc).__name__}: {exc})")
     return problems
@@ -90,6 +106,13 @@ def _check_contents(name: str, ep, entry: dict, task: str | None) -> list[str]:
             **{f"truth/{k}": v for k, v in ep.truth.items()}}
     if ep.modality is not None:
         cols["modality"] = ep.modality
+    if ep.proprio is not None:
+        cols["proprio"] = ep.proprio
+        names = ep.proprio_names
+        if ep.proprio.ndim != 2 or (names and ep.proprio.shape[1] != len(names)):
+            problems.append(f"{name}: proprio is {ep.proprio.shape}, expected [{T}, "
+                            f"{len(names) if names else 'D'}] (proprio_names: "
+                            f"{', '.join(names) or 'none'})")
     for key, ds in cols.items():
         if ds.shape[:1] != (T,):
             problems.append(f"{name}: {key} has {ds.shape[0] if ds.ndim else 0} rows, "
@@ -106,6 +129,10 @@ def _check_contents(name: str, ep, entry: dict, task: str | None) -> list[str]:
             problems.append(f"{name}: ticks are not strictly increasing")
         if not np.isfinite(ep.target[:]).all():
             problems.append(f"{name}: {ep.target_key} holds NaN/inf")
+        if ep.proprio is not None:
+            bad = int((~np.isfinite(ep.proprio[:])).any(axis=-1).sum())
+            if bad:     # the recorder writes a row only once every stream gave its tick
+                problems.append(f"{name}: proprio holds NaN/inf in {bad} of {T} rows")
     return problems
 
 
@@ -133,8 +160,11 @@ def check_dataset(root: str | Path) -> CheckReport:
             rep.problems.append(f"{name}: listed twice in {INDEX}")
         listed.add(name)
         rep.episodes += 1
-        problems = check_episode(root / name, e, task)
+        notes: dict = {}
+        problems = check_episode(root / name, e, task, notes)
         rep.problems += problems
+        if notes.get("no_proprio"):
+            rep.no_proprio.append(name)
         if not problems:
             rep.frames += int(e.get("frames", 0))
     for p in sorted(root.iterdir()):

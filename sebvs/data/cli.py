@@ -1,6 +1,8 @@
 """Command-line registration for the data tools: `sebvs record`, `sebvs data check|stats`."""
 from __future__ import annotations
 
+from ..shipped import topology_argument
+
 
 def _check(args) -> int:
     from .check import cmd_check
@@ -162,7 +164,8 @@ def register(sub) -> None:
                                    "s per wall s). --workers / --ray play the episodes on "
                                    "several topology runs at once, with the same episode "
                                    "files as one (docs/scale.md).")
-    r.add_argument("topology", help="topology TOML file with a recorder actor")
+    r.add_argument("topology", type=topology_argument,
+                   help="topology TOML file with a recorder actor")
     r.add_argument("--episodes", type=int, required=True, metavar="N")
     r.add_argument("--out", required=True, metavar="DIR", help="dataset directory")
     r.add_argument("--sensor", choices=SENSORS, default=None,

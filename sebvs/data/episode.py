@@ -16,6 +16,9 @@ Layout of ``episode_NNNN.h5`` (T frames, one row per control tick):
     latency/<hop>  [T]           float32  per-frame hop latency, microseconds (NaN: not seen)
     truth/<name>   [T, ...]      float    privileged ground truth (NaN: not given that frame)
     modality       [T]           S16      input modality of a driving policy (optional)
+    proprio        [T, D]        float32  the robot's proprioception at the tick (optional;
+                                          NaN: not given that frame): sebvs/sim/proprio.py,
+                                          components named by the attribute proprio_names
 
 Attributes: task, scene, conditions (JSON), seed, topology (JSON), emulator (JSON),
 event_scale, event_offset, version, end_reason, frames, plus any extra scalar or JSON
@@ -124,6 +127,7 @@ class EpisodeWriter:
         self._latency: dict[str, dict[int, float]] = {}
         self._truth: dict[str, dict[int, np.ndarray]] = {}
         self._modality: dict[int, bytes] = {}
+        self._proprio: dict[int, np.ndarray] = {}
 
     def set_attrs(self, attrs: dict) -> None:
         """Set or update file attributes (dicts and lists are stored as JSON text)."""
@@ -151,14 +155,16 @@ class EpisodeWriter:
                event_frame: np.ndarray | None = None, action: np.ndarray | None = None,
                pose: np.ndarray | None = None, latency: dict[str, float] | None = None,
                truth: dict[str, Any] | None = None, modality: str | None = None,
-               raw_events: dict[str, np.ndarray] | None = None) -> int:
+               raw_events: dict[str, np.ndarray] | None = None,
+               proprio: np.ndarray | None = None) -> int:
         """Write one frame; returns its row index.
 
         rgb [H, W, 3] uint8; event_frame [2, H', W'] counts (clipped to 0..255);
         action [2] (nav) or pose [6] (arm) float; latency {hop: microseconds};
         truth {name: number or array, same shape every frame}; raw_events {"x", "y",
-        "t", "p"} equal-length 1-D. rgb, event_frame and raw_events must be given in every
-        frame or in none; latency, truth and modality may be missing (NaN / empty there).
+        "t", "p"} equal-length 1-D; proprio [D] float, the same D every frame. rgb,
+        event_frame and raw_events must be given in every frame or in none; latency,
+        truth, modality and proprio may be missing (NaN / empty there).
         """
         target = action if self.task == "nav" else pose
         if target is None:
@@ -209,6 +215,13 @@ class EpisodeWriter:
             self._truth.setdefault(key, {})[i] = value
         if modality is not None:
             self._modality[i] = str(modality).encode()[:16]
+        if proprio is not None:
+            proprio = np.asarray(proprio, np.float32).reshape(-1)
+            first = next(iter(self._proprio.values()), proprio)
+            if proprio.shape != first.shape:
+                raise ValueError(f"proprio must have {first.size} values every frame, got "
+                                 f"{proprio.size}")
+            self._proprio[i] = proprio
         self.frames += 1
         return i
 
@@ -234,6 +247,7 @@ class EpisodeWriter:
                 else:
                     del columns[key]        # no row left to give the column its shape
         self._modality = {i: v for i, v in self._modality.items() if i < n}
+        self._proprio = {i: v for i, v in self._proprio.items() if i < n}
         if "events/offset" in self.f:
             off = self.f["events/offset"]
             self.raw_count = int(off[n])
@@ -317,6 +331,12 @@ class EpisodeWriter:
             for i, v in self._modality.items():
                 col[i] = v
             f.create_dataset("modality", data=col)
+        if self._proprio:
+            dim = next(iter(self._proprio.values())).size
+            col = np.full((n, dim), np.nan, np.float32)
+            for i, v in self._proprio.items():
+                col[i] = v
+            f.create_dataset("proprio", data=col)
 
     def abandon(self) -> None:
         """Close after a failed write (a full disk), keeping the .partial file as the mark
@@ -352,7 +372,10 @@ class Episode:
     ``rgb`` [T, H, W, 3], ``event_frame`` [T, 2, H, W] or None, ``target`` (``action``
     [T, 2] or ``pose`` [T, 6]), ``t_sim`` [T], ``tick`` [T], ``latency`` {hop: [T]},
     ``truth`` {name: [T, ...]}, ``modality`` [T] or None, ``raw_events`` (x, y, t, p,
-    offset datasets) or None; ``attrs`` is a plain dict with JSON attributes decoded.
+    offset datasets) or None, ``proprio`` [T, D] float32 or None (episodes recorded before
+    the recorder stored it, or without the sim's `proprio` wired), its components
+    ``proprio_names`` (a tuple, empty without); ``attrs`` is a plain dict with JSON
+    attributes decoded.
     """
 
     def __init__(self, path: str | Path):
@@ -401,6 +424,9 @@ class Episode:
         self.modality = named(f["modality"]) if "modality" in f else None
         self.raw_events = ({k: named(f[f"events/{k}"]) for k in ("x", "y", "t", "p", "offset")}
                            if "events/x" in f else None)
+        self.proprio = named(f["proprio"]) if "proprio" in f else None
+        names = self.attrs.get("proprio_names") or ()
+        self.proprio_names = tuple(str(n) for n in names) if isinstance(names, list) else ()
 
     def __len__(self) -> int:
         return int(self.rgb.shape[0])

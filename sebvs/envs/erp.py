@@ -16,7 +16,6 @@ the camera's dvs rate, an event frame at each tick).
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 import gymnasium
@@ -218,11 +217,25 @@ class ERPEnv(gymnasium.Env):
     def _action_space(self) -> spaces.Box:
         raise NotImplementedError
 
+    def _proprio_reader(self):
+        """The scene's proprioception for the model the sim runs now.
+
+        Returns:
+            sebvs.sim.proprio.ProprioReader: what the sim actor sends the recorder too.
+        """
+        sim = self.sim
+        if getattr(self, "_reader_model", None) is not sim.model:
+            from sebvs.sim.proprio import proprio_reader
+            self._reader = proprio_reader(sim.scene_name, sim.scene, sim.model)
+            self._reader_model = sim.model
+        return self._reader
+
     def _proprio(self) -> np.ndarray:
-        raise NotImplementedError
+        return self._proprio_reader().read(self.sim.data)
 
     def _proprio_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        raise NotImplementedError
+        reader = self._proprio_reader()
+        return reader.lo, reader.hi
 
     def _tick_reward(self, truth: dict) -> float:
         return 0.0
@@ -299,9 +312,12 @@ class ERPEnv(gymnasium.Env):
         return obs
 
     def _info(self) -> dict:
-        info = {"episode": self.episode, "seed": self.episode_info["seed"], "tick": self.tick,
-                "t_ep": self._t_ep, "t_sim": self._t_sim, "truth": self._truth,
-                "command": self.sim.command.copy(), "rejected": self.rejected}
+        # "episode" is Gymnasium's: RecordEpisodeStatistics (and every trainer reading
+        # episode returns through it) writes its statistics under that key
+        info = {"episode_index": self.episode, "seed": self.episode_info["seed"],
+                "tick": self.tick, "t_ep": self._t_ep, "t_sim": self._t_sim,
+                "truth": self._truth, "command": self.sim.command.copy(),
+                "rejected": self.rejected}
         if self.privileged:
             info["ideal"] = self._parts["ideal"]
             info["state"] = self._parts["state"]
@@ -424,22 +440,6 @@ class ERPNavEnv(ERPEnv):
     def _action_space(self) -> spaces.Box:
         return spaces.Box(-1.0, 1.0, (2,), np.float32)
 
-    def _proprio(self) -> np.ndarray:
-        sim = self.sim
-        model, data = sim.model, sim.data
-        if not hasattr(self, "_dof"):
-            self._dof = [int(model.jnt_dofadr[model.joint(n).id]) for n in ("x", "y", "yaw")]
-        vx, vy, w = (float(data.qvel[i]) for i in self._dof)
-        yaw = sim.scene.robot_pose(data)[2]
-        c, s = math.cos(yaw), math.sin(yaw)
-        return np.array([c * vx + s * vy, -s * vx + c * vy, w], np.float64)
-
-    def _proprio_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        # beyond the stability limits the sim ends the episode as diverged
-        lim = self.sim.scene.limits()
-        hi = np.array([lim.max_speed, lim.max_speed, lim.max_angular], np.float64)
-        return -hi, hi
-
     def _tick_reward(self, truth: dict) -> float:
         from sebvs.metrics import centre_error_px, success_radius
         err = centre_error_px(truth)
@@ -477,18 +477,6 @@ class ERPArmEnv(ERPEnv):
         lo = np.array([-0.9, -0.9, -0.2, -np.pi, -np.pi, -np.pi], np.float32)
         hi = np.array([0.9, 0.9, 0.9, np.pi, np.pi, np.pi], np.float32)
         return spaces.Box(lo, hi, (6,), np.float32)
-
-    def _proprio(self) -> np.ndarray:
-        scene, data = self.sim.scene, self.sim.data
-        return np.concatenate([data.qpos[scene.arm_qadr], data.qpos[scene.finger_qadr]])
-
-    def _proprio_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        # the joints' ranges, with a margin for a limit's soft constraint
-        model, scene = self.sim.model, self.sim.scene
-        adr = np.concatenate([scene.arm_qadr, scene.finger_qadr])
-        qadr_to_joint = {int(model.jnt_qposadr[j]): j for j in range(model.njnt)}
-        rng = np.array([model.jnt_range[qadr_to_joint[int(a)]] for a in adr], np.float64)
-        return rng[:, 0] - 0.1, rng[:, 1] + 0.1
 
     def _terminal(self, reason: str) -> bool:
         return True

@@ -32,7 +32,7 @@ class ExpertPolicy:
 
     def __call__(self, obs, info: dict) -> np.ndarray:
         agent = self.agent
-        dt = agent.new_tick(info["episode"], info["t_ep"], info["t_sim"])
+        dt = agent.new_tick(info["episode_index"], info["t_ep"], info["t_sim"])
         if self.env.task == "nav":
             return agent.nav_act(info["ideal"], dt)[0]
         sim = self.env.sim

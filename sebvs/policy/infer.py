@@ -46,6 +46,10 @@ def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
     if checkpoints:
         named = [(m, Path(p)) for m, p in checkpoints.items()]
     elif directory:
+        # "checkpoints", the topologies' default, is the shipped folder wherever the
+        # working directory has none (sebvs/shipped.py)
+        from sebvs.shipped import shipped_path
+        directory = str(shipped_path(directory))
         named = [(m, checkpoint_paths(directory, task, m)[0])
                  for m in (modalities or PAPER_MODALITIES)]
     else:

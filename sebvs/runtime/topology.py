@@ -449,9 +449,15 @@ def build_topology(doc: dict, path: Path) -> Topology:
             inputs[inp] = InputSpec(inp, producer, output, queue, max_bytes)
         params = {k: v for k, v in table.items() if k not in ACTOR_RESERVED}
         try:
-            build_params(cls.Params, params, where=where)
+            built = build_params(cls.Params, params, where=where)
         except ValueError as exc:
             raise TopologyError(str(exc)) from None
+        # parameters that need an input the table does not wire (the recorder's
+        # raw_events): the actor class says so in one line, before any process starts
+        check = getattr(cls, "check_wiring", None)
+        problem = check(built, frozenset(inputs)) if check is not None else None
+        if problem:
+            raise TopologyError(f"{where}: {problem}")
         keep = table.get("keep", False)
         if not isinstance(keep, bool):
             raise TopologyError(f"{where} key 'keep': expected true or false")
