@@ -30,13 +30,16 @@ class _Canvas:
     """One GL context, the current model's MjrContext and the posed scene: what the
     renderers of several sizes sharing it (FrameRenderer.view) draw from."""
 
-    def __init__(self, max_geom: int) -> None:
+    def __init__(self, max_geom: int, gl=None) -> None:
+        """gl: another canvas's GL context to draw in (kept open by that canvas; the
+        tiled renderer's models share one, sebvs.sim.tiles), else a context of its own."""
         from mujoco import gl_context
         if gl_context.GLContext is None:
             raise RuntimeError(f"no offscreen GL for MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}")
+        self.owns_gl = gl is None
         # the context's own surface is never drawn to: renders go to the model's
         # offscreen buffer (<visual><global offwidth offheight>)
-        self.gl = gl_context.GLContext(1, 1)
+        self.gl = gl_context.GLContext(1, 1) if gl is None else gl
         self.gl.make_current()
         self.max_geom = max_geom
         self.option = mujoco.MjvOption()
@@ -76,8 +79,14 @@ class _Canvas:
         self.scene = mujoco.MjvScene(model, maxgeom=self.max_geom)
         self.camera_ids: dict[str, int] = {}
 
-    def update(self, data: mujoco.MjData, camera: str | int) -> None:
+    def update(self, data: mujoco.MjData, camera: "str | int | mujoco.MjvCamera") -> None:
         cam = self.camera
+        if isinstance(camera, mujoco.MjvCamera):
+            # a view the caller set up (a free or tracking camera, as Gymnasium's MuJoCo
+            # envs render models that have no camera of their own): used as it is
+            mujoco.mjv_updateScene(self.model, data, self.option, None, camera,
+                                   mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+            return
         if isinstance(camera, str):
             cam_id = self.camera_ids.get(camera)
             if cam_id is None:
@@ -118,7 +127,8 @@ class _Canvas:
         if self.ctx is not None:
             self.ctx.free()
             self.ctx = None
-        self.gl.free()
+        if self.owns_gl:
+            self.gl.free()
 
 
 class FrameRenderer:
@@ -188,9 +198,10 @@ class FrameRenderer:
         self.close()
 
     # -- rendering ------------------------------------------------------------------
-    def update(self, data: mujoco.MjData, camera: str | int) -> None:
+    def update(self, data: mujoco.MjData, camera: "str | int | mujoco.MjvCamera") -> None:
         """Pose the scene from `data` (its kinematics must be current) for `camera` (a
-        name or an id of the model's cameras; -1: the free camera)."""
+        name or an id of the model's cameras; -1: the free camera; or a mujoco.MjvCamera
+        the caller set up, drawn as it is)."""
         self._canvas.update(data, camera)
 
     def _draw(self, rgb: np.ndarray | None, depth: np.ndarray | None,
