@@ -27,9 +27,14 @@ well, ADC, tone curve, motion blur integrated from sub-frames over the exposure;
 exposure ends readout_s before the tick, meta exposure_s, gain_db, t_exposure_end), and
 luma carries the scene's luminance {"luma": (h, w) float32 cd/m^2, meta units "cd/m2"},
 which the emulator reads as linear light. Each output is emitted as soon as it is made;
-at a tick the physical frame comes last, so the luma reaches the event chain while the
-exposure is integrated, and the frame's sub-frames are rendered as the states that fix
-their poses arrive (sebvs.sensors.rig.SensorRig.ahead).
+at a tick the physical frame comes last. frame_ready "auto" (the default) is "ahead" on the
+realtime clock and "tick" in lockstep. "ahead": the frame a
+tick gets is made in full (renders, integral, noise) on the states before it, and the tick
+only publishes it; its exposure ends readout_s before the tick where a state comes between
+that end and the tick, else at the last state before the tick (t_exposure_end says which;
+docs/sensors.md, "When a frame is made"). frame_ready "tick": the exposure ends readout_s
+before the tick wherever that falls, and the tick's own state closes it where the states
+are sparser than readout_s (the frames before issue 64's item 2).
 H, W = scene.image_shape() (the scene config's height/width). Frames are rendered straight into the
 runtime's shared-memory slots (self.reserve). The rendering is sebvs.sensors.camera's
 CameraCore, which sebvs.envs runs in process too.
@@ -68,6 +73,11 @@ class Camera(Actor):
         # over each exposure (no sub-frames of its own; where no luma is consumed it falls
         # back to them), or "subframes", its own renders every subframe_s (before issue 64)
         frame_light: Literal["shared", "subframes"] = "shared"
+        # when the physical frame a tick gets is made: "ahead", on the states before its
+        # tick (which only publishes it), or "tick", exposed to readout_s before the tick
+        # wherever that falls (the tick's own state may be needed: the path before)
+        # ("auto", the default: "ahead" on the realtime clock, "tick" in lockstep)
+        frame_ready: Literal["auto", "ahead", "tick"] = "auto"
         radiance_ratio: Annotated[float, Range(gt=1, le=64)] = 16.0
                                    # exposure ratio between the radiance render's channels
         # luma times: "fixed" at dvs_hz; "adaptive" when the brightness could have changed
@@ -82,7 +92,8 @@ class Camera(Actor):
 
     async def setup(self) -> None:
         wanted = {o for o in self.outputs if o in self.consumed}
-        self.core = CameraCore(self.params, wanted, seed=self.seed, log=self.log)
+        self.core = CameraCore(self.params, wanted, seed=self.seed, log=self.log,
+                               clock=self.clock)
         self.tick = None           # the previous state's, for luma between two states
         self.log.info("camera: rendering %s, sensor %s", sorted(wanted) or "nothing",
                       self.params.sensor)

@@ -241,7 +241,8 @@ def test_subframes_rendered_ahead_are_the_frames_of_the_tick(states_hz, held_s,
 
     def frames():
         core = CameraCore(Camera.Params(sensor="physical", dvs_hz=states_hz,
-                                        frame_overrides=held, frame_light="subframes"),
+                                        frame_overrides=held, frame_light="subframes",
+                                        frame_ready="tick"),
                           {"rgb", "luma"})
         out, tick_work = [], []
         for arrays, meta, *_ in states:
@@ -279,7 +280,8 @@ def test_a_bad_next_tick_time_costs_the_rendering_ahead_not_the_frames():
 
     def frames(t_next):
         core = CameraCore(Camera.Params(sensor="physical", dvs_hz=100.0,
-                                        frame_light="subframes"), {"rgb", "luma"})
+                                        frame_light="subframes", frame_ready="tick"),
+                          {"rgb", "luma"})
         out = []
         for arrays, meta, *_ in states:
             if "t_next_control" in meta:

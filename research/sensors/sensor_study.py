@@ -82,10 +82,11 @@ SMOKE_DIR = ROOT / "out" / "study_sensors" / "smoke"
 LEDGER = "steps.jsonl"
 
 # ------------------------------------------------------------------ the plan, as written
-# the frame camera's own sub-frames: the study's frames were made before the one light
-# stream became the default (docs/sensors.md); the topologies pin emulator preset version 1
+# the frame camera's own sub-frames, exposed to 5 ms before each tick: the study's frames
+# were made before the one light stream and the frames made ahead of their tick became the
+# defaults (docs/sensors.md); the topologies pin emulator preset version 1
 PHYS = ['camera.sensor="physical"', 'emulator.preset="physical"',
-        'camera.frame_light="subframes"']
+        'camera.frame_light="subframes"', 'camera.frame_ready="tick"']
 RANDOMISE = {
     "nav": ('sim.randomise={variant=["indoor","outdoor"], lighting=["nominal","nominal",'
             '"low","dusk","hdr","flicker"], flicker_hz={uniform=[5.0,20.0]}, '

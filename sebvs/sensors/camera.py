@@ -14,6 +14,10 @@ it has none); `alloc` gives the arrays a frame is rendered into (the actor's sha
 slots, or plain arrays). With luma_sampling "adaptive" (sebvs/dvs/adaptive.py) a state
 can also bring luma samples from between the previous state and itself: each with its
 own meta t_ep (earlier than the state's), control False, before the state's own luma.
+On the physical sensor with frame_ready "ahead" (what "auto", the default, is on the
+realtime clock; FRAME_READY) the frame of a
+control tick is made while an earlier state is handled (its call yields nothing more for
+it) and the tick's call only yields it: iterate every state's outputs to the end.
 """
 from __future__ import annotations
 
@@ -32,6 +36,11 @@ from sebvs.sim.render import FrameRenderer
 import mujoco  # noqa: E402
 
 OUTPUTS = ("rgb", "luma", "depth", "seg", "ideal")
+# when the physical frame camera makes the frame a control tick gets (Camera.Params.frame_ready)
+# ("auto": "ahead" where the clock is realtime, which is where it buys latency; "tick" in
+# lockstep, where the states come back to back and it buys nothing, so that lockstep runs
+# keep the frames the shipped checkpoints were trained and evaluated on)
+FRAME_READY = ("auto", "ahead", "tick")
 Alloc = Callable[[str, dict], dict]
 
 
@@ -61,7 +70,7 @@ class CameraCore:
     """Renders a scene's states with its own copy of the scene's model."""
 
     def __init__(self, params, wanted, seed: int = 0,
-                 log: logging.Logger | None = None) -> None:
+                 log: logging.Logger | None = None, clock: str = "lockstep") -> None:
         self.params = params
         self.seed = seed
         self.log = log or logging.getLogger("sebvs.camera")
@@ -96,6 +105,16 @@ class CameraCore:
             raise ValueError(f"camera: frame_light must be 'shared' or 'subframes', got "
                              f"{frame_light!r}")
         self.shared_light = self.physical and frame_light == "shared" and "luma" in self.wanted
+        # "ahead": the frame a tick gets is made on the states before it, and the tick only
+        # publishes it; "tick": its exposure ends readout_s before the tick wherever that
+        # falls, and the tick's own state closes it where the states are sparser than that
+        frame_ready = getattr(params, "frame_ready", "auto")
+        if frame_ready not in FRAME_READY:
+            raise ValueError(f"camera: frame_ready must be one of {', '.join(FRAME_READY)}, "
+                             f"got {frame_ready!r}")
+        self.frame_ahead = frame_ready == "ahead" or (frame_ready == "auto"
+                                                      and clock == "realtime")
+        self.state_dt: float | None = None      # the last two states' spacing
         if self.physical:
             from .framecam import preset
             self.frame_params = preset(params.frame_camera, **params.frame_overrides)
@@ -106,8 +125,12 @@ class CameraCore:
             # comes (frames on control ticks only): its sub-frames are rendered as the
             # states that fix their poses arrive, not all at that tick
             self.next_t_end: float | None = None
+            self.next_tick: float | None = None     # that tick's t_ep
+            # frame_ready "ahead": the end of the exposure already made for the next tick
+            self.made_end: float | None = None
             self.counts.update(subframes_ahead=0, subframes_discarded=0,
-                               bad_t_next_control=0, light_extra=0, frames_ahead=0)
+                               bad_t_next_control=0, light_extra=0, frames_ahead=0,
+                               exposure_end_moved=0)
 
     def _build_rig(self, frame_rate_hz: float) -> None:
         from .rig import SensorRig
@@ -129,7 +152,15 @@ class CameraCore:
 
     def build(self, scene_name: str, config: dict) -> None:
         """Compile the scene's model for `config` (kept for the next episodes)."""
-        self.scene = make_scene(scene_name, **config)
+        self.use_scene(make_scene(scene_name, **config), (scene_name, config))
+
+    def use_scene(self, scene, key) -> None:
+        """Render `scene` from now on: a Scene, or any object with its compile(), cameras,
+        image_shape(), rgb_blur(), set_state(), kinematics() and photometry() (sebvs/
+        model_scene.py: anyone's compiled model); `key` names it (a state's meta scene and
+        config equal to it need no new build)."""
+        scene_name, config = key
+        self.scene = scene
         self.model = self.scene.compile()
         self.data = mujoco.MjData(self.model)
         cam = self.params.camera or self.scene.cameras[0]
@@ -184,13 +215,17 @@ class CameraCore:
         want_rgb = "rgb" in self.wanted and rgb_due
         want_ideal = "ideal" in self.wanted and rgb_due
         self._keep_state(state, t_ep, want_rgb)
-        if not (want_luma or want_rgb or want_ideal
+        made_end = self._ahead_end(t_ep, rgb_due)
+        if not (want_luma or want_rgb or want_ideal or made_end is not None
                 or (rgb_due and self.wanted & {"depth", "seg"})):
             yield from between
             return
         out_meta = {"episode": ep, "control": control, "t_ep": t_ep}
-        self.pose(state)
-        self.renderer.update(self.data, self.cam)   # the scene of every size (luma's too)
+        if want_luma or want_ideal or (want_rgb and not self.physical) \
+                or (rgb_due and self.wanted & {"depth", "seg"}):
+            # the scene of every size (luma's too); the physical frame poses its own
+            self.pose(state)
+            self.renderer.update(self.data, self.cam)
         # an unblurred RGB render of this sample, if one was made
         sharp = yield from self._ideal_frames(want_rgb and not self.physical, want_ideal,
                                               out_meta, meta.get("truth"), alloc)
@@ -199,7 +234,12 @@ class CameraCore:
             yield self._luma_frame(state, t_ep, out_meta, alloc, sharp)
         if rgb_due:
             yield from self._privileged_frames(out_meta, alloc)
-        if want_luma and self.shared_light and not want_rgb and self.next_t_end is not None:
+        if made_end is not None:
+            # the next tick's frame, made here in full (after the renders above: it
+            # re-poses); the tick then only publishes it
+            self._frame_ahead(state, t_ep, made_end)
+        elif want_luma and self.shared_light and not want_rgb and self.next_t_end is not None \
+                and not self.frame_ahead:
             # the exposure may have ended with this sample: expose it now, ahead of its
             # tick, which then only reads it out (after the renders above: it re-poses)
             self.rig.ahead_shared(self.states, self.pose, self.data, self.cam,
@@ -236,9 +276,10 @@ class CameraCore:
         self.previous = None
         if self.sampler is not None:
             self.sampler.reset()
+        self.state_dt = None
         if self.physical:
             self.states.clear()
-            self.next_t_end = None
+            self.next_t_end = self.next_tick = self.made_end = None
             self.rig.new_episode(self.seed * 1_000_003 + (ep if isinstance(ep, int) else 0))
 
     def _luma_due(self, state: dict, ep, t_ep: float, control: bool
@@ -256,8 +297,11 @@ class CameraCore:
         return control or self.sampler.due(t_ep), between
 
     def _check_state_rate(self, t_ep: float) -> None:
-        """Warn once when the states come slower than dvs_hz asks for."""
+        """Keep the states' spacing (state_dt); warn once when the states come slower than
+        dvs_hz asks for."""
         p = self.params
+        if self.last_t is not None and t_ep > self.last_t:
+            self.state_dt = t_ep - self.last_t
         if self.last_t is not None and p.dvs_hz > 0 and not self.warned_rate \
                 and t_ep - self.last_t > 1.5 / p.dvs_hz:
             self.warned_rate = True
@@ -270,7 +314,8 @@ class CameraCore:
         (and the next frame's sub-frames that it fixes), and the blur history."""
         if self.physical and "rgb" in self.wanted:
             self.states.add(t_ep, state)
-            if not want_rgb and self.next_t_end is not None and not self.shared_light:
+            if not want_rgb and self.next_t_end is not None and not self.shared_light \
+                    and (not self.frame_ahead or self._state_reaches_end()):
                 self.rig.ahead(self.states, self.pose, self.data, self.cam, self.next_t_end,
                                self._light_scale)
                 self._count_subframes()
@@ -377,10 +422,52 @@ class CameraCore:
             self.counts["luma_between"] += 1
         return out
 
+    def _state_reaches_end(self) -> bool:
+        """Whether a state comes at or after the next exposure's end and before its tick:
+        the states' spacing is at most readout_s (a state lands on the tick)."""
+        return self.state_dt is not None and self.state_dt <= self.rig.readout_s + 1e-9
+
+    def _ahead_end(self, t_ep: float, rgb_due: bool) -> float | None:
+        """frame_ready "ahead": where the exposure of the next tick's frame ends if it is
+        made at this state, else None. It is made at the first state at or past its end
+        (readout_s before the tick), or, where no state falls between that end and the
+        tick (states sparser than readout_s), at the last state before the tick, where it
+        ends instead: the readout latency then rounds up to the states' spacing. The last
+        is the one whose successor, a spacing later, would be the tick."""
+        if not (self.frame_ahead and self.physical and "rgb" in self.wanted) or rgb_due \
+                or self.next_t_end is None or self.made_end is not None:
+            return None
+        if t_ep >= self.next_t_end:
+            return self.next_t_end
+        if self.state_dt is not None and t_ep + 1.5 * self.state_dt > self.next_tick:
+            return t_ep
+        return None
+
+    def _frame_ahead(self, state: dict, t_ep: float, t_end: float) -> None:
+        """Make the next tick's frame now, its exposure ending at `t_end` (<= t_ep): on the
+        light samples (with one of its own at this state where no luma sample is here), or
+        on its sub-frames, all of whose poses the states now fix."""
+        rig = self.rig
+        if self.shared_light:
+            if not rig.light.reaches(t_end):
+                self.pose(state)
+                rig.add_light(t_ep, rig.luminance(self.data, self.cam, self._light_scale(state)))
+                rig.light_extra += 1
+            rig.ahead_shared(self.states, self.pose, self.data, self.cam, t_end,
+                             self._light_scale)
+        else:
+            rig.ahead(self.states, self.pose, self.data, self.cam, t_end, self._light_scale)
+        self.made_end = t_end
+        if t_end != self.next_t_end:
+            self.counts["exposure_end_moved"] += 1
+        self._count_subframes()
+
     def _next_exposure_end(self, t_next, t_ep: float) -> float | None:
-        """When the next frame's exposure ends, from a tick's t_next_control: None where
-        the sim said nothing, or something other than a later finite time (counted in
-        bad_t_next_control, logged once); that frame is then rendered at its tick."""
+        """When the next frame's exposure ends, from a tick's t_next_control (kept in
+        next_tick): None where the sim said nothing, or something other than a later finite
+        time (counted in bad_t_next_control, logged once); that frame is then rendered at
+        its tick."""
+        self.next_tick = None
         if t_next is None:
             return None
         if isinstance(t_next, bool) or not isinstance(t_next, (int, float)) \
@@ -391,7 +478,8 @@ class CameraCore:
                                  "counts these)", t_next, t_ep)
             self.counts["bad_t_next_control"] += 1
             return None
-        return float(t_next) - self.rig.readout_s
+        self.next_tick = float(t_next)
+        return self.next_tick - self.rig.readout_s
 
     @staticmethod
     def _light_scale(state: dict) -> float:
@@ -400,8 +488,12 @@ class CameraCore:
 
     def _frame(self, t_ep: float, meta: dict, alloc: Alloc) -> tuple[str, dict, dict]:
         """The modelled frame camera's image at this tick: exposed up to readout_s
-        before it (sebvs.sensors.rig)."""
-        t_end = t_ep - self.rig.readout_s
+        before it (sebvs.sensors.rig), or the one made ahead for this tick."""
+        if self.made_end is not None and t_ep == self.next_tick:
+            t_end = self.made_end
+        else:
+            t_end = t_ep - self.rig.readout_s
+        self.made_end = None
         arrays = alloc("rgb", {"rgb": ((self.h, self.w, 3), np.uint8)})
         make = self.rig.frame_shared if self.shared_light else self.rig.frame
         frame = make(self.states, self.pose, self.data, self.cam, t_end, self._light_scale)

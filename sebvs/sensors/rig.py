@@ -12,9 +12,12 @@ The event sensor reads the radiance render's luminance (cd/m^2, float32, >= 100 
 image) at every luma sample. The frame camera integrates sub-frames over its exposure
 (one per `subframe_s`, at most `max_subframes`) at poses interpolated from the sim's
 states, each linear RGB = luminance x the surface's unshaded colour over its luminance;
-its exposure ends readout_s before the tick that gets it. `ahead` renders the next frame's
-sub-frames as the states that fix their poses arrive: the same frame bit for bit, less of
-its work on the tick's path. docs/sensors.md, section 3.
+its exposure ends readout_s before the tick that gets it (or earlier: the caller says
+where). `ahead` renders the next frame's sub-frames as the states that fix their poses
+arrive, and `ahead_shared` exposes a frame on the light samples once they reach its end:
+the same frame bit for bit as `frame` / `frame_shared` at the tick, which then return it
+(sebvs.sensors.camera's frame_ready "ahead" makes every frame so, before its tick).
+docs/sensors.md, section 3.
 """
 from __future__ import annotations
 
@@ -84,8 +87,8 @@ class SensorRig:
         # the event sensor's light samples, which a shared-light frame integrates
         # (frame_shared); the longest exposure, the readout and a margin behind the newest
         self.light = LightSamples(self.params.exposure_max_s + self.params.readout_s + 0.05)
-        self.light_extra = 0            # samples rendered for an exposure that had none
-        self.frames_ahead = 0           # shared-light frames exposed before their tick
+        self.light_extra = 0            # light samples rendered for the frame camera alone
+        self.frames_ahead = 0           # frames exposed before their tick (either light)
 
     def set_scene(self, model: mujoco.MjModel, photometry: Photometry) -> None:
         """A new model (the colour renderer already switched to it)."""
@@ -133,6 +136,7 @@ class SensorRig:
             ex = self._exposure(t_end, exposure_s or self.camera.exposure_s)
         else:
             self.subframes_ahead += int(ex.rendered.sum())
+            self.frames_ahead += ex.frame is not None
         if ex.frame is None:
             self._render(ex, np.flatnonzero(~ex.rendered), history, pose, data, camera,
                          light_scale_of)

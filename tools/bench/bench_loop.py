@@ -4,9 +4,11 @@ the chain's own compute, and the nav pipeline and recording throughput, in one r
 
 loop      topologies/nav_policy.toml (sim, camera, emulator, accumulator, the shipped
           rgb+event policy, tracker) on the **realtime** clock, the profiler attached,
-          on the sensor pair `--sensor` names: ideal8 (default: the 8-bit path the
-          runtime's anchors were set on) or physical (the shipped pair, whose frame
-          camera model is rendering work on the loop; docs/runtime.md).
+          on the sensor pair the shipped topology runs (default: its camera.sensor,
+          "physical", the topology as it ships), or the one `--sensor` names with the
+          checkpoints trained on it: `--sensor ideal8` for the 8-bit path the runtime's
+          anchors were set on (docs/runtime.md). Every row of the output names its
+          "sensor".
           The sensor-to-action chain runs from the sim's send of a state to the end of
           its on_action handler (the action applied), through whichever input completed
           the tick: sim > camera > emulator > accumulator > policy > sim when the events
@@ -31,18 +33,21 @@ loop      topologies/nav_policy.toml (sim, camera, emulator, accumulator, the sh
           sebvs/policy/graph.py). The targets are read on `shipped`. `--load N` runs N
           CPU-bound processes at the default priority during the loop parts, so the tail
           is measured on a machine that is loaded on purpose, not by chance.
-pipeline  nav expert + emulator + accumulator, lockstep, dvs 200 Hz: real-time factor
-          (tools/bench/bench_sim.py's bench_pipeline).
+pipeline  nav expert + emulator + accumulator, lockstep, dvs 200 Hz, on the same sensor
+          pair: real-time factor (tools/bench/bench_sim.py's bench_pipeline).
 record    `sebvs record topologies/nav_record.toml` at dvs 200 Hz on the same sensor pair:
           real-time factor of the whole command, start-up included
           (tools/bench/bench_sim.py's bench_record).
+
+`--variant NAME` (repeatable) runs only those loop variants (e.g. `--variant shipped`).
 
 Each part runs --repeats times, one after the other; the headline figures are medians
 over the repeats, each repeat's figure is kept beside them. The machine's load average
 is recorded before and after: on a shared machine read the ratios, not the absolutes.
 
     tools/bench/bench_loop.py [--quick] [--repeats N] [--load N] [--loop-only]
-                              [--sensor ideal8|physical] [--set A.K=V] [--json OUT]
+                              [--sensor ideal8|physical] [--variant NAME ...]
+                              [--set A.K=V] [--json OUT]
 """
 from __future__ import annotations
 
@@ -64,7 +69,7 @@ from sebvs.runtime.profiler import LOOP_TARGETS_MS, ProfileCollector  # noqa: E4
 from sebvs.runtime.supervisor import Supervisor  # noqa: E402
 from sebvs.runtime.topology import load_topology  # noqa: E402
 from sebvs.sensor_pairs import SENSORS, topology_overrides  # noqa: E402
-from tools.bench.bench_sim import bench_pipeline, bench_record  # noqa: E402
+from tools.bench.bench_sim import bench_pipeline, bench_record, sensor_of  # noqa: E402
 from tools.benchio import print_report  # noqa: E402
 
 NAV_POLICY = ROOT / "topologies" / "nav_policy.toml"
@@ -178,6 +183,7 @@ def summarize_loops(loops: list[dict]) -> dict:
     best = sorted(loops, key=lambda x: x["chain_p50_ms"])[len(loops) // 2]
     sim = [x["sim_deadlines"] for x in loops if x.get("sim_deadlines")]
     return {
+        "sensor": best.get("sensor"),
         "chain": best["chain"], "paths": [x["paths"] for x in loops], "clock": "realtime",
         **{k: _median(loops, k) for k in ("chain_p50_ms", "chain_p99_ms",
                                           "compute_p50_ms", "chain_over_compute")},
@@ -223,38 +229,44 @@ def main() -> int:
                     help="a topology override for the loop and record parts (repeatable), "
                          "e.g. camera.luma_scale=0.5 for the paper's 80 px sensor; the "
                          "pipeline part keeps its own settings")
-    ap.add_argument("--sensor", choices=SENSORS, default="ideal8",
-                    help="the sensor pair of the loop and record parts: ideal8 (default, "
-                         "the 8-bit path the anchors were set on) or physical (the shipped "
-                         "pair); --set lines come after it")
+    ap.add_argument("--sensor", choices=SENSORS, default=None,
+                    help="the sensor pair of every part, with the checkpoints trained on it: "
+                         "physical or ideal8 (the 8-bit path the anchors were set on); "
+                         "default: the shipped topologies' own (nav_policy's camera.sensor), "
+                         "which they run as shipped; --set lines come after it")
+    ap.add_argument("--variant", action="append", choices=list(VARIANTS), default=None,
+                    help="only this loop variant (repeatable; default: all three)")
     ap.add_argument("--json", metavar="OUT", help="write the results here")
     args = ap.parse_args()
     repeats = args.repeats or (1 if args.quick else 3)
+    variants = {v: VARIANTS[v] for v in VARIANTS if v in (args.variant or VARIANTS)}
+    sensor = sensor_of(args.set, args.sensor, NAV_POLICY)
     loop_s, pipe_s, rec_eps, rec_s = (10.0, 5.0, 1, 5.0) if args.quick else (30.0, 20.0, 2, 20.0)
     out: dict = {"config": {"quick": args.quick, "repeats": repeats, "loop_s": loop_s,
                             "pipeline_s": pipe_s, "record_episodes": rec_eps,
                             "record_episode_s": rec_s, "dvs_hz": 200.0, "load": args.load,
-                            "variants": {k: v for k, v in VARIANTS.items()},
-                            "sensor": args.sensor, "sets": args.set,
+                            "variants": {k: v for k, v in variants.items()},
+                            "sensor": sensor, "sensor_from": "--sensor" if args.sensor
+                            else "topologies/nav_policy.toml as shipped", "sets": args.set,
                             "cpus": os.cpu_count(), "statistic": "median over repeats"},
                  "load_avg_before": list(os.getloadavg())}
-    loops = {v: [] for v in VARIANTS}
+    loops = {v: [] for v in variants}
     pipes, recs, notes = [], [], []
-    loop_sets = [topology_overrides(args.sensor), *args.set]
-    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, VARIANTS[v] + loop_sets),
-              loops[v]) for v in VARIANTS]
+    loop_sets = [*([topology_overrides(args.sensor)] if args.sensor else []), *args.set]
+    parts = [(f"loop {v}", lambda v=v: bench_closed_loop(loop_s, 1.0, variants[v] + loop_sets),
+              loops[v]) for v in variants]
     if not args.loop_only:
-        parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0), pipes),
+        parts += [("pipeline", lambda: bench_pipeline(pipe_s, 200.0, sensor=sensor), pipes),
                   ("record", lambda: bench_record(rec_eps, rec_s, 200.0, sets=args.set,
                                                   sensor=args.sensor), recs)]
     for r in range(repeats):
         # the variants alternate their order, so a slow phase of the machine hits both
-        order = parts[:len(VARIANTS)][::-1 if r % 2 else 1] + parts[len(VARIANTS):]
+        order = parts[:len(variants)][::-1 if r % 2 else 1] + parts[len(variants):]
         for name, fn, rows in order:
             try:
                 if name.startswith("loop"):
                     with Burners(args.load):
-                        rows.append(fn())
+                        rows.append({"sensor": sensor, **fn()})
                 else:
                     rows.append(fn())
             except Exception as exc:    # one part failing still leaves the others' figures
@@ -266,21 +278,23 @@ def main() -> int:
         if rows:
             out[f"loop_{variant}"] = summarize_loops(rows)
     if pipes:
-        out["pipeline"] = {"x_real_time": _median(pipes, "real_time_factor"),
+        out["pipeline"] = {"sensor": sensor, "x_real_time": _median(pipes, "real_time_factor"),
                            "repeats": pipes}
     if recs:
-        out["record"] = {"x_real_time": _median(recs, "real_time_factor"), "repeats": recs}
+        out["record"] = {"sensor": recs[0]["sensor"],
+                         "x_real_time": _median(recs, "real_time_factor"), "repeats": recs}
     tuned = out.get(f"loop_{TARGET_VARIANT}", {})
     got = {"chain_p50_ms": tuned.get("chain_p50_ms"),
            "chain_p99_ms": tuned.get("chain_p99_ms"),
            "chain_over_compute": tuned.get("chain_over_compute"),
            "pipeline_x_real_time": out.get("pipeline", {}).get("x_real_time"),
            "record_x_real_time": out.get("record", {}).get("x_real_time")}
-    out["targets"] = {k: {"target": t, "got": got[k],
+    out["targets"] = {k: {"target": t, "got": got[k], "sensor": sensor,
                           "met": None if got[k] is None else
                           (got[k] >= t if k.endswith("real_time") else got[k] <= t)}
                       for k, t in TARGETS.items()}
-    out["targets_measured_on"] = f"loop_{TARGET_VARIANT} (chain figures), load {args.load}"
+    out["targets_measured_on"] = (f"loop_{TARGET_VARIANT} (chain figures), load {args.load}, "
+                                  f"sensor {sensor}")
     if notes:
         out["notes"] = notes
     print_report(out, args.json)

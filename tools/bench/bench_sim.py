@@ -9,18 +9,29 @@ render    the camera actor's per-frame work: set_state + kinematics + update_sce
 pipeline  real-time factor of the navigation expert topology with the event chain, the
           issue's target: topologies/nav_expert.toml (sim + camera + expert + tracker,
           lockstep, 160 px) at dvs_hz 200 with the emulator, the accumulator and a probe
-          on its event frames added (`--set NAME.run=...`). The expert paces the sim; the
-          probe counts the event frames, so the entry says whether the event chain kept up
-          (event_frames == ticks). Also topologies/nav_record.toml at dvs_hz 200 (the same
-          chain with the recorder pacing the sim and writing HDF5): the recording speed.
+          on its event frames added (`--set NAME.run=...`), on the ideal8 pair (8-bit luma,
+          the paper preset: bench_pipeline's sensor="physical" runs the other). The expert
+          paces the sim; the probe counts the event frames, so the entry says whether the
+          event chain kept up (event_frames == ticks). Also topologies/nav_record.toml at
+          dvs_hz 200 (the same chain with the recorder pacing the sim and writing HDF5) on
+          its shipped pair, the physical one: the recording speed.
 ceiling   CPU seconds per simulated second of a nav recording's compute with no runtime
-          around it (physics 1 kHz, luma at dvs_hz through the emulator, RGB at 10 Hz),
-          split by stage, and the real-time factor that bounds any placement on 1 and 2
-          cores: N / that (issue 18's 15x and 10x targets read against it)
+          around it, split by stage, and the real-time factor that bounds any placement on
+          1 and 2 cores: N / that (issue 18's 15x and 10x targets read against it). Rows
+          [ideal8]: physics 1 kHz, 8-bit luma at dvs_hz through the paper emulator, the
+          ideal RGB at 10 Hz (the computation this has always been). Rows [physical]: the
+          shipped pair through the camera's own CameraCore (radiance luma, the frame
+          camera's renders, integral and noise, the ideal view) and the physical emulator.
+          Every row names its "sensor".
 sensors   nav recording at dvs_hz 200 with the camera's sensor "ideal8" and "physical"
-          (sebvs/sensors: radiance render per luma sample, modelled frame camera with
-          sub-frames, emulator preset "physical"), alternating, one episode each per
-          repeat: the real-time factors' medians and their ratio (issue 34: >= 0.7)
+          (`sebvs record --sensor`, alternating, one episode each per repeat): the real-time
+          factors' medians and their ratio (issue 34: >= 0.7)
+ceiling vs record  `--ceiling-vs-record`: the physical pair's ceiling and its measured
+          recording rate (nav_record on the ceiling's scene, start-up included) side by
+          side in one run, with their ratio, the ideal8 ceiling beside them
+frame ready  `--frame-ready-only`: the camera's frame_ready "ahead" (the default: a tick's
+          frame made on the states before it) against "tick" at the shipped 100 Hz: the
+          noise-free frames' difference against the noise, and each one's CPU on the tick
 adaptive  issue 37: adaptive luma sampling (camera luma_sampling "adaptive") against a dense
           fixed-rate reference (luma at every 1 kHz sim state), on the nav and arm expert
           topologies with the event chain (80 px luma, paper preset, linear low-pass hold)
@@ -43,7 +54,8 @@ each repeat, and reports the median per placement; `--pipeline-only` skips physi
 rendering.
 
     tools/bench/bench_sim.py [--quick] [--json FILE] [--placement P[,P...]] [--pipeline-only]
-                       [--ceiling-only] [--sensors-only] [--adaptive-only | --no-adaptive]
+                       [--ceiling-only] [--sensors-only] [--ceiling-vs-record]
+                       [--frame-ready-only] [--adaptive-only | --no-adaptive]
                        [--adaptive-set KEY=VALUE ...]
 """
 from __future__ import annotations
@@ -249,11 +261,19 @@ def bench_ceiling(seconds: float, dvs_hz: float = 200.0, luma_size: int = 160,
                     cpu["emulator"] += c3 - c2
             runs.append({**{key: v / seconds for key, v in cpu.items()}, "events": events,
                          "frames": frames})
-    per_s = {key: statistics.median(run[key] for run in runs) for key in
-             ("physics", "luma_render", "emulator", "rgb_render")}
+    return _ceiling_row(f"nav {variant}, physics 1 kHz + luma {luma_size} px at {dvs_hz:g} Hz "
+                        f"through the emulator + RGB {rgb_size} px at {rgb_hz:g} Hz, no runtime",
+                        "ideal8", runs, ("physics", "luma_render", "emulator", "rgb_render"),
+                        seconds, repeats)
+
+
+def _ceiling_row(what: str, sensor: str, runs: list[dict], stages: tuple, seconds: float,
+                 repeats: int) -> dict:
+    """A ceiling's row from its runs ({stage: CPU s per sim s, "events", "frames"}): the
+    stages' medians, their total and the real-time factors it bounds on 1 and 2 cores."""
+    per_s = {key: statistics.median(run[key] for run in runs) for key in stages}
     total = sum(per_s.values())
-    return {"what": f"nav {variant}, physics 1 kHz + luma {luma_size} px at {dvs_hz:g} Hz through "
-                    f"the emulator + RGB {rgb_size} px at {rgb_hz:g} Hz, no runtime",
+    return {"what": what, "sensor": sensor,
             "cpu_s_per_sim_s": {key: round(v, 4) for key, v in per_s.items()},
             "cpu_s_per_sim_s_total": round(total, 4),
             "ceiling_x_on_1_core": round(1.0 / total, 2),
@@ -263,14 +283,134 @@ def bench_ceiling(seconds: float, dvs_hz: float = 200.0, luma_size: int = 160,
             "sim_s": seconds, "repeats": repeats}
 
 
-def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None = None) -> dict:
+# the nav_record camera's outputs that someone consumes: the recorder's frame, the emulator's
+# luma and the expert's privileged view
+RECORD_OUTPUTS = frozenset({"rgb", "luma", "ideal"})
+PHYSICAL_EMULATOR = {"downsample": 1.0, "preset_version": 1}     # nav_record's overrides
+
+
+def bench_ceiling_physical(seconds: float, dvs_hz: float = 200.0, luma_size: int = 160,
+                           rgb_size: int = 160, repeats: int = 3, variant: str = "indoor",
+                           frame_ready: str = "ahead") -> dict:
+    """bench_ceiling for the physical pair, through the recording's own code with no runtime
+    around it, in one thread: the sim's SceneStepper at 1 kHz (states at `dvs_hz`, a control
+    tick at 10 Hz, a command held), the camera's CameraCore on sensor "physical" making what
+    nav_record consumes (the frame camera's image per tick, the radiance luma at `dvs_hz`,
+    the ideal render per tick), and the emulator's SensorStream on preset "physical" as
+    nav_record sets it. CPU seconds per simulated second by stage: physics, luma_render,
+    ideal_render, frame_camera (its renders, integral and noise, wherever frame_ready puts
+    them), emulator.
+
+    Parameters:
+        seconds: simulated seconds per repeat; dvs_hz: the state and luma rate.
+        luma_size, rgb_size: the event sensor's and the frame camera's side, px.
+        repeats: runs, each a fresh episode of the same seed (medians reported).
+        variant: the nav scene's ("indoor" or "outdoor"), nominal light.
+        frame_ready: the camera's (actors/camera.py).
+
+    Returns:
+        bench_ceiling's row, with these stages and "sensor": "physical".
+    """
+    from actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    from sebvs.sim.stepper import SceneStepper
+    params = Camera.Params(sensor="physical", dvs_hz=dvs_hz, luma_scale=luma_size / rgb_size,
+                           frame_ready=frame_ready)
+    stages = ("physics", "luma_render", "ideal_render", "frame_camera", "emulator")
+    sim = SceneStepper("nav", {"variant": variant, "width": rgb_size, "height": rgb_size},
+                       control_hz=10.0, render_hz=dvs_hz, episode_s=seconds)
+    camera = CameraCore(params, RECORD_OUTPUTS, seed=0)
+    runs = []
+    try:
+        # episode 0, untimed: the camera compiles its model and warms its renderers up
+        _physical_episode(sim, camera, 0, 0.2, stages)
+        for k in range(1, repeats + 1):
+            runs.append(_physical_episode(sim, camera, k, seconds, stages))
+    finally:
+        camera.close()
+    return _ceiling_row(f"nav {variant}, physical pair: physics 1 kHz + radiance luma "
+                        f"{luma_size} px at {dvs_hz:g} Hz through the physical emulator + "
+                        f"the frame camera {rgb_size} px and the ideal render at 10 Hz "
+                        f"(frame_ready {frame_ready}), no runtime", "physical", runs, stages,
+                        seconds, repeats)
+
+
+def _physical_episode(sim, camera, k: int, seconds: float, stages: tuple) -> dict:
+    """One timed episode of bench_ceiling_physical (the same start each time, numbered k
+    so the camera and the emulator begin afresh): {stage: CPU s per sim s, "events",
+    "frames"}; at most `seconds` of it."""
+    from sebvs.dvs.params import preset
+    from sebvs.dvs.stream import SensorStream
+    bucket = {"luma": "luma_render", "ideal": "ideal_render", "rgb": "frame_camera"}
+    stream = SensorStream(preset("physical", seed=0, **PHYSICAL_EMULATOR))
+    cpu = dict.fromkeys(stages, 0.0)
+    events, frames = 0, {"luma": 0, "rgb": 0, "ideal": 0}
+    sim.start_episode(0, 0)
+    sim.apply(np.array([0.3, 0.4]))
+    steps = round(seconds / sim.dt)
+    while True:
+        if sim.render_due:
+            state, meta = sim.scene.state(sim.data), sim.sample_meta(k)
+            c0 = time.process_time()
+            for output, arrays, _ in camera.sample(state, meta):
+                c1 = time.process_time()
+                cpu[bucket[output]] += c1 - c0
+                frames[output] += 1
+                if output == "luma":
+                    events += len(stream.frame(arrays["luma"], sim.data.time, k, "cd/m2"))
+                    c2 = time.process_time()
+                    cpu["emulator"] += c2 - c1
+                    c1 = c2
+                c0 = c1
+            # what follows the last output: the next tick's frame, made ahead
+            cpu["frame_camera"] += time.process_time() - c0
+        c0 = time.process_time()
+        done = sim.advance() or sim.step >= steps
+        cpu["physics"] += time.process_time() - c0
+        if done:
+            break
+    return {**{key: v / seconds for key, v in cpu.items()}, "events": events,
+            "frames": frames}
+
+
+def shipped_sensor(topology: Path) -> str:
+    """The sensor pair a topology file runs as shipped: its camera's `sensor` (the camera
+    actor's default, "ideal8", where it names none)."""
+    import tomllib
+    with open(topology, "rb") as f:
+        camera = tomllib.load(f).get("actors", {}).get("camera", {})
+    return camera.get("sensor", "ideal8")
+
+
+def sensor_of(sets, sensor: str | None, topology: Path) -> str:
+    """The pair a run of `topology` with these --set lines and --sensor records on."""
+    if sensor:
+        return sensor
+    for text in sets:
+        if isinstance(text, str) and text.replace(" ", "").startswith("camera.sensor="):
+            return text.split("=", 1)[1].strip().strip('"')
+    return shipped_sensor(topology)
+
+
+# the event chain of bench_pipeline on the physical pair (nav_record's emulator settings)
+PIPELINE_PHYSICAL = ['camera.sensor="physical"', 'emulator.preset="physical"',
+                     "emulator.overrides={downsample=1.0, preset_version=1}"]
+
+
+def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None = None,
+                   sensor: str = "ideal8") -> dict:
     """nav_expert + the event chain at `dvs_hz`, one episode of `seconds`: real-time factor
     from the probe's first to last RGB frame (start-up excluded), event frames against
-    control ticks."""
+    control ticks. `sensor`: "ideal8" (the chain's paper preset on 8-bit luma, as this
+    benchmark always ran) or "physical" (the camera's physical sensor and the emulator's
+    physical preset, as nav_record runs them)."""
     from sebvs.runtime.supervisor import run_topology
+    if sensor not in ("ideal8", "physical"):
+        raise ValueError(f"bench_pipeline: sensor must be 'ideal8' or 'physical', got {sensor!r}")
     with tempfile.TemporaryDirectory() as tmp:
         probe = Path(tmp) / "probe"
-        overrides = [*EVENT_CHAIN, f"probe.path={json.dumps(str(probe))}",
+        overrides = [*EVENT_CHAIN, *(PIPELINE_PHYSICAL if sensor == "physical" else ()),
+                     f"probe.path={json.dumps(str(probe))}",
                      f"sim.render_hz={dvs_hz}", f"camera.dvs_hz={dvs_hz}",
                      f"sim.episode_s={seconds}", "sim.episodes=1", 'tracker.path=""']
         if placement:
@@ -285,7 +425,7 @@ def bench_pipeline(seconds: float, dvs_hz: float = 200.0, placement: str | None 
     wall = (rgb[-1]["recv_ns"] - rgb[0]["recv_ns"]) / 1e9 if len(rgb) > 1 else float("nan")
     sim = (rgb[-1]["t_sim"] - rgb[0]["t_sim"]) if len(rgb) > 1 else float("nan")
     return {"topology": f"nav_expert + emulator + accumulator (dvs_hz {dvs_hz:g}, lockstep, "
-                        f"160 px)",
+                        f"160 px)", "sensor": sensor,
             "placement": placement or "topology's",
             "real_time_factor": round(sim / wall, 2) if wall > 0 else None,
             "ticks": len(rgb), "event_frames": len(events),
@@ -320,6 +460,7 @@ def bench_record(episodes: int, seconds: float, dvs_hz: float = 200.0,
         index = json.loads((Path(tmp) / "ds" / "index.json").read_text())
     frames = sum(e["frames"] for e in index["episodes"])
     return {"topology": f"nav_record (dvs_hz {dvs_hz:g}, recorder paces the sim, HDF5)",
+            "sensor": sensor_of(sets, sensor, ROOT / "topologies" / "nav_record.toml"),
             "placement": placement or "topology's", "sets": list(sets),
             "real_time_factor": round(episodes * seconds / wall, 2), "episodes": episodes,
             "frames": frames, "wall_s_incl_startup": round(wall, 2)}
@@ -443,22 +584,163 @@ def bench_adaptive(scene: str, quick: bool, repeats: int, sets: list[str] = ()) 
     return row, detail
 
 
-PHYSICAL_SENSORS = ('camera.sensor="physical"', 'emulator.preset="physical"')
-
-
 def bench_sensors(repeats: int, seconds: float) -> dict:
     """Recording throughput with either sensor, alternating so a slow phase of this
-    shared machine hits both."""
+    shared machine hits both. Each run names its pair (`sebvs record --sensor`): nav_record
+    ships the physical one, so a run without it records that."""
     rates: dict[str, list[float]] = {"ideal8": [], "physical": []}
     for _ in range(repeats):
-        for name, sets in (("ideal8", ()), ("physical", PHYSICAL_SENSORS)):
-            row = bench_record(1, seconds, sets=list(sets))
+        for name in rates:
+            row = bench_record(1, seconds, sensor=name)
             rates[name].append(row["real_time_factor"])
             print(f"sensors {name:8s} record {row['real_time_factor']}x real time", flush=True)
     med = {k: statistics.median(v) for k, v in rates.items()}
     return {"what": f"nav_record at dvs_hz 200, one {seconds:g} s episode per run",
             "runs": rates, "median": med,
             "physical_over_ideal8": round(med["physical"] / med["ideal8"], 3)}
+
+
+# nav_record on one fixed scene, the ceiling's: its own config (indoor, nominal light)
+FIXED_SCENE = ("sim.randomise={}",)
+
+
+def bench_ceiling_vs_record(repeats: int, ceiling_s: float, record_s: float,
+                            dvs_hz: float = 200.0) -> dict:
+    """The physical pair's compute ceiling and its recording, side by side in one run.
+
+    The ceiling is bench_ceiling_physical (the recording's compute with no runtime, indoor
+    nominal nav); the recording `sebvs record topologies/nav_record.toml --sensor physical`
+    on that one scene (sim.randomise={}), one `record_s` episode per repeat, start-up
+    included (bench_record). The ideal8 ceiling (bench_ceiling, what `--ceiling-only` has
+    always computed) stands beside them for the figures quoted against it before.
+
+    Parameters:
+        repeats: the ceiling's repeats and the recordings.
+        ceiling_s, record_s: simulated seconds per ceiling repeat and per recording.
+        dvs_hz: the state and luma rate of both.
+
+    Returns:
+        {"sensor", "dvs_hz", "record_x_real_time" (median), "ceiling_x_on_2_cores",
+        "record_over_ceiling" (their ratio: the share of its own compute the recording
+        reaches on two cores), "record_over_ideal8_ceiling", "ceiling", "ceiling_ideal8",
+        "records" (each run's row)}.
+    """
+    ceiling = bench_ceiling_physical(ceiling_s, dvs_hz, repeats=repeats)
+    print(f"ceiling physical: {ceiling['cpu_s_per_sim_s_total']} CPU s per sim s "
+          f"{ceiling['cpu_s_per_sim_s']}, at most {ceiling['ceiling_x_on_2_cores']}x real "
+          f"time on 2 cores", flush=True)
+    ideal = bench_ceiling(ceiling_s, dvs_hz, repeats=repeats)
+    records = []
+    for _ in range(repeats):
+        records.append(bench_record(1, record_s, dvs_hz, sets=list(FIXED_SCENE),
+                                    sensor="physical"))
+        print(f"record physical: {records[-1]['real_time_factor']}x real time", flush=True)
+    rate = statistics.median(r["real_time_factor"] for r in records)
+    top = ceiling["ceiling_x_on_2_cores"]
+    return {"what": f"nav_record on the physical pair at dvs_hz {dvs_hz:g} (indoor nominal, "
+                    f"sim.randomise={{}}, one {record_s:g} s episode per run, start-up "
+                    f"included) against its compute with no runtime",
+            "sensor": "physical", "dvs_hz": dvs_hz,
+            "record_x_real_time": rate, "ceiling_x_on_2_cores": top,
+            "record_over_ceiling": round(rate / top, 3),
+            "record_over_ideal8_ceiling": round(rate / ideal["ceiling_x_on_2_cores"], 3),
+            "ceiling": ceiling, "ceiling_ideal8": ideal, "records": records}
+
+
+def bench_frame_ready(config: dict | None = None, seconds: float = 3.0,
+                      dvs_hz: float = 100.0, seed: int = 0,
+                      command: tuple = (0.4, 1.0), size: int = 160) -> dict:
+    """The camera's frame_ready "ahead" against "tick" on one nav episode, every tick after
+    the first: what it changes in the frames, against the frame camera's own noise, and
+    what each costs on the tick's path (issue 64, item 2).
+
+    Four cameras read the same states (sebvs.sim.stepper, a command held): a noise-free
+    pair (preset "ideal"), one per frame_ready, differs only by when its exposures end; a
+    noisy pair ("mv_global_shutter", "ahead") with two seeds differs by the camera's noise
+    and fixed pattern; and the noisy cameras' CPU time while each tick's state is handled
+    (its luma, its ideal view and whatever of its frame is left), against one noisy camera
+    on "tick" beside them.
+
+    Parameters:
+        config: nav config overrides (e.g. {"lighting": "dusk"}); seconds: episode length.
+        dvs_hz: the state and luma rate (the shipped topologies' 100 Hz: states sparser
+            than the 5 ms readout, so "ahead" moves the exposures' end).
+        seed: the episode's and the cameras' seed; command: nav [v, w], held.
+        size: the image side, px.
+
+    Returns:
+        {"ticks", "moved_dn_median" / "moved_dn_p99" (per tick the noise-free pair's mean
+        and 99th percentile |difference| in DN, median over ticks), "noise_dn_median",
+        "ratio_median" (moved over noise, per tick), "readout_ms" (each frame_ready's median
+        tick - exposure end), "tick_ms_p50" (each frame_ready's CPU while a tick's state is
+        handled, median), "period_cpu_ms" (its CPU over all states per control period: the
+        work moved, not removed), "counts" (the noise-free "ahead" camera's)}.
+    """
+    from actors.camera import Camera
+    from sebvs.sensors.camera import CameraCore
+    from sebvs.sim.stepper import SceneStepper
+    sim = SceneStepper("nav", {"width": size, "height": size, **(config or {})},
+                       control_hz=10.0, render_hz=dvs_hz, episode_s=seconds)
+
+    def camera(frame_ready: str, frame_camera: str, camera_seed: int) -> CameraCore:
+        return CameraCore(Camera.Params(sensor="physical", dvs_hz=dvs_hz,
+                                        frame_camera=frame_camera, frame_ready=frame_ready),
+                          RECORD_OUTPUTS, seed=camera_seed)
+
+    cams = {"clean_ahead": camera("ahead", "ideal", seed),
+            "clean_tick": camera("tick", "ideal", seed),
+            "ahead": camera("ahead", "mv_global_shutter", seed),
+            "ahead_b": camera("ahead", "mv_global_shutter", seed + 1),
+            "tick": camera("tick", "mv_global_shutter", seed)}
+    timed = ("ahead", "tick")
+    cpu = {name: {"tick": [], "state": []} for name in timed}
+    frames: dict[str, list] = {name: [] for name in cams}
+    try:
+        sim.start_episode(seed, 0)
+        sim.apply(np.asarray(command, np.float64))
+        while True:
+            if sim.render_due:
+                state, meta = sim.scene.state(sim.data), sim.sample_meta(0)
+                for name, cam in cams.items():
+                    c0 = time.process_time()
+                    for output, arrays, m in cam.sample(state, meta):
+                        if output == "rgb":
+                            frames[name].append((arrays["rgb"].astype(np.int16), m))
+                    if name in timed:
+                        cpu[name]["tick" if meta["control"] else "state"].append(
+                            time.process_time() - c0)
+            if sim.advance():
+                break
+        counts = dict(cams["clean_ahead"].counts)
+    finally:
+        for cam in cams.values():
+            cam.close()
+
+    def mean_abs(a: str, b: str) -> np.ndarray:
+        return np.array([np.abs(x[0] - y[0]).mean() for x, y in
+                         zip(frames[a][1:], frames[b][1:])])
+    moved, noise = mean_abs("clean_ahead", "clean_tick"), mean_abs("ahead", "ahead_b")
+    p99 = [np.percentile(np.abs(x[0] - y[0]), 99) for x, y in
+           zip(frames["clean_ahead"][1:], frames["clean_tick"][1:])]
+
+    def readout_ms(name: str) -> float:
+        return round(1e3 * float(np.median([m["t_ep"] - m["t_exposure_end"]
+                                            for _, m in frames[name][1:]])), 3)
+    # the first tick compiles the model: left out like the first frame
+    return {"config": dict(config or {}), "dvs_hz": dvs_hz, "size": size,
+            "command": list(command), "ticks": len(moved),
+            "moved_dn_median": round(float(np.median(moved)), 4),
+            "moved_dn_p99": round(float(np.median(p99)), 4),
+            "noise_dn_median": round(float(np.median(noise)), 4),
+            "ratio_median": round(float(np.median(moved / np.maximum(noise, 1e-9))), 4),
+            "readout_ms": {name: readout_ms(name) for name in timed},
+            "tick_ms_p50": {name: round(1e3 * float(np.median(cpu[name]["tick"][1:])), 3)
+                            for name in timed},
+            "period_cpu_ms": {name: round(1e3 * (sum(cpu[name]["tick"][1:])
+                                                 + sum(cpu[name]["state"])) / len(moved), 3)
+                              for name in timed},
+            "counts": {k: counts[k] for k in ("frames_ahead", "exposure_end_moved",
+                                              "light_extra")}}
 
 
 def main() -> int:
@@ -473,6 +755,13 @@ def main() -> int:
                     help="only the compute ceiling (no physics, render or topology rows)")
     ap.add_argument("--sensors-only", action="store_true",
                     help="only the ideal8 / physical sensor recording comparison")
+    ap.add_argument("--ceiling-vs-record", action="store_true",
+                    help="only the physical pair's compute ceiling and its measured "
+                         "recording rate side by side, with their ratio (and the ideal8 "
+                         "ceiling beside them)")
+    ap.add_argument("--frame-ready-only", action="store_true",
+                    help="only the camera's frame_ready ahead against tick: the frames' "
+                         "difference against the noise, and the tick's CPU")
     ap.add_argument("--adaptive-only", action="store_true",
                     help="only adaptive luma sampling against the 1 kHz reference (and, "
                          "without --quick, recording with it)")
@@ -492,6 +781,30 @@ def main() -> int:
                  "config": {"quick": args.quick, "repeats": repeats, "steps": steps,
                             "frames": frames, "statistic": "median"}}
     notes = []
+    if args.ceiling_vs_record or args.frame_ready_only:
+        if args.ceiling_vs_record:
+            row = bench_ceiling_vs_record(args.repeats or (1 if args.quick else 3),
+                                          1.0 if args.quick else 3.0,
+                                          10.0 if args.quick else 20.0)
+            out["ceiling_vs_record"] = row
+            print(f"physical pair: recording {row['record_x_real_time']}x real time, ceiling "
+                  f"{row['ceiling_x_on_2_cores']}x on 2 cores: {row['record_over_ceiling']} "
+                  f"of it ({row['record_over_ideal8_ceiling']} of the ideal8 ceiling "
+                  f"{row['ceiling_ideal8']['ceiling_x_on_2_cores']}x)", flush=True)
+        if args.frame_ready_only:
+            out["frame_ready"] = []
+            cells = [{}, {"lighting": "dusk", "target_speed": "fast"}]
+            for config in cells[:1] if args.quick else cells:
+                row = bench_frame_ready(config, seconds=1.5 if args.quick else 3.0)
+                out["frame_ready"].append(row)
+                print(f"frame_ready {config or 'nominal'}: ahead - tick {row['moved_dn_median']}"
+                      f" DN against the noise's {row['noise_dn_median']} DN; tick CPU "
+                      f"{row['tick_ms_p50']} ms, per period {row['period_cpu_ms']} ms",
+                      flush=True)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps(out, indent=1))
+        return 0
     if args.sensors_only:
         out["sensors"] = bench_sensors(args.repeats or (2 if args.quick else 3),
                                        10.0 if args.quick else 20.0)
@@ -538,16 +851,20 @@ def main() -> int:
             notes.append(f"scene switch {size}: {type(exc).__name__}: {exc}")
     ceilings = [("indoor", 200.0, 160), ("outdoor", 200.0, 160), ("indoor", 200.0, 80),
                 ("indoor", 100.0, 160), ("outdoor", 100.0, 160)]
-    for variant, dvs_hz, luma_size in () if args.pipeline_only else ceilings:
+    # the physical pair's beside them (the shipped topologies' sensors), at the same rates
+    ceilings += [(v, hz, size, "physical") for v, hz, size in ceilings[:2]]
+    for variant, dvs_hz, luma_size, *sensor in () if args.pipeline_only else ceilings:
         try:
-            row = bench_ceiling(2.0 if args.quick else 5.0, dvs_hz, luma_size, repeats=repeats,
-                                variant=variant)
+            bench = bench_ceiling_physical if sensor == ["physical"] else bench_ceiling
+            row = bench(2.0 if args.quick else 5.0, dvs_hz, luma_size, repeats=repeats,
+                        variant=variant)
             out.setdefault("ceiling", []).append(row)
-            print(f"ceiling {row['what']}: {row['cpu_s_per_sim_s_total']} CPU s per sim s "
-                  f"{row['cpu_s_per_sim_s']}, at most {row['ceiling_x_on_2_cores']}x real "
-                  f"time on 2 cores", flush=True)
+            print(f"ceiling [{row['sensor']}] {row['what']}: {row['cpu_s_per_sim_s_total']} "
+                  f"CPU s per sim s {row['cpu_s_per_sim_s']}, at most "
+                  f"{row['ceiling_x_on_2_cores']}x real time on 2 cores", flush=True)
         except Exception as exc:
-            notes.append(f"ceiling {variant}, dvs {dvs_hz:g} Hz, luma {luma_size} px: "
+            notes.append(f"ceiling {variant} {sensor or ['ideal8']}, dvs {dvs_hz:g} Hz, "
+                         f"luma {luma_size} px: "
                          f"{type(exc).__name__}: {exc}")
     placements = [p.strip() for p in args.placement.split(",") if p.strip()] or [None]
     runs = args.repeats or (1 if args.quick else 3)
