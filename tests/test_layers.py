@@ -26,6 +26,8 @@ LAYERS = (
     {"sebvs.data", "sebvs.experts"},
     # the sensor models on the scenes' light, and their validation against the experts
     {"sebvs.sensors"},
+    # the event camera on anyone's MuJoCo model (the library API over the sensors)
+    {"sebvs.event_camera"},
     {"sebvs.policy"},
     # the evaluator; the stream probe (reads sebvs.data and sebvs.policy.inputs)
     {"sebvs.eval", "sebvs.numerics", "sebvs.probe"},

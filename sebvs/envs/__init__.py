@@ -25,6 +25,7 @@ from sebvs.sensor_pairs import DEFAULT_CONDITION  # noqa: E402
 
 from .erp import ERPArmEnv, ERPEnv, ERPNavEnv, OBS_KEYS  # noqa: E402
 from .expert import ExpertPolicy  # noqa: E402
+from .wrapper import EventCameraWrapper  # noqa: E402,F401  (light: sensors load on use)
 
 ENV_IDS = {"nav": "SEBVS/ERPNav-v1", "arm": "SEBVS/ERPArm-v1"}
 ENV_IDS_IDEAL8 = {"nav": "SEBVS/ERPNav-v0", "arm": "SEBVS/ERPArm-v0"}

@@ -17,8 +17,18 @@ events and event frames (tests/test_envs.py checks them equal, bit for bit). Eac
 runs --repeats times, alternating; the headline figures are medians, each repeat's kept
 beside them, with the machine's load average before and after.
 
+--wrapper: sebvs.envs.EventCameraWrapper on stock Gymnasium MuJoCo envs (--envs), side by
+side with the unwrapped env rendering each step (render_mode="rgb_array", render() after
+every step) at the same resolution: env steps per second over --steps steps of the same
+seeded actions, make(), the first reset and one warm-up step excluded, each side
+--repeats times, alternating. The wrapper adds events and the frame camera's image
+(obs "events", "rgb") at its default 100 Hz luma sampling; the target is wrapped >= 0.5x
+unwrapped (issue 66).
+
     tools/bench/bench_env.py [--quick] [--task nav|arm|both] [--condition C]
                              [--episode-s S] [--repeats N] [--json OUT]
+    tools/bench/bench_env.py --wrapper [--envs Pusher-v5,Reacher-v5] [--width 64]
+                             [--height H] [--steps 100] [--preset physical] [--repeats N]
 """
 from __future__ import annotations
 
@@ -137,9 +147,92 @@ def bench(task: str, condition: str, scenario: str | None, seed: int, episode_s:
             "topology_runs": topo, "env_runs": env}
 
 
+def _timed_steps(env, actions, render: bool) -> float:
+    """Steps per second of `env` over `actions` (a reset where an episode ends, counted)."""
+    t0 = time.perf_counter()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if render:
+            env.render()
+        if terminated or truncated:
+            env.reset()
+    return len(actions) / (time.perf_counter() - t0)
+
+
+def bench_wrapper_pair(env_id: str, width: int, height: int, steps: int, seed: int,
+                       preset: str) -> dict:
+    """One repeat: the unwrapped env rendering every step, then the wrapped one, on the
+    same seeded actions (module docstring)."""
+    import gymnasium as gym
+    from sebvs.envs import EventCameraWrapper
+    out = {}
+    for side in ("unwrapped", "wrapped"):
+        if side == "unwrapped":
+            env = gym.make(env_id, render_mode="rgb_array", width=width, height=height)
+        else:
+            env = EventCameraWrapper(gym.make(env_id, width=width, height=height),
+                                     width=width, height=height, preset=preset,
+                                     obs=("events", "rgb"))
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        actions = [env.action_space.sample() for _ in range(steps + 1)]
+        _timed_steps(env, actions[:1], side == "unwrapped")     # warm-up: GL, first frame
+        out[side] = round(_timed_steps(env, actions[1:], side == "unwrapped"), 2)
+        env.close()
+    return out
+
+
+def bench_wrapper(env_id: str, width: int, height: int, steps: int, seed: int,
+                  preset: str, repeats: int) -> dict:
+    runs = [bench_wrapper_pair(env_id, width, height, steps, seed, preset)
+            for _ in range(repeats)]
+    u = statistics.median(r["unwrapped"] for r in runs)
+    w = statistics.median(r["wrapped"] for r in runs)
+    return {"env": env_id, "width": width, "height": height, "steps": steps,
+            "preset": preset, "seed": seed, "repeats": repeats,
+            "unwrapped_render_steps_per_s": u, "wrapped_steps_per_s": w,
+            "wrapped_over_unwrapped": round(w / u, 2) if u else None, "target": 0.5,
+            "runs": runs}
+
+
+def main_wrapper(args) -> int:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import gymnasium as gym
+    from sebvs.dvs.params import PRESETS
+    envs = [e for e in args.envs.split(",") if e]
+    bad = [e for e in envs if e not in gym.registry]
+    problem = (f"--envs: {bad[0]!r} is not a registered Gymnasium env id" if bad else
+               "--envs: name at least one env id" if not envs else
+               f"--preset: {args.preset!r} is not one of {', '.join(PRESETS)}"
+               if args.preset not in PRESETS else
+               "--width, --height and --steps must be positive"
+               if min(args.width, args.height or args.width, args.steps) < 1 else None)
+    if problem:
+        print(f"bench_env: {problem}", file=sys.stderr)
+        return 2
+    steps = 30 if args.quick else args.steps
+    repeats = 1 if args.quick else args.repeats
+    report = {"bench": "env_wrapper", "quick": args.quick, "cpus": os.cpu_count(),
+              "load_before": os.getloadavg(), "results": []}
+    for env_id in envs:
+        report["results"].append(bench_wrapper(env_id, args.width, args.height or args.width,
+                                               steps, args.seed, args.preset, repeats))
+    report["load_after"] = os.getloadavg()
+    print_report(report, args.json)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one short repeat per task")
+    ap.add_argument("--wrapper", action="store_true",
+                    help="EventCameraWrapper against the unwrapped env rendering each step")
+    ap.add_argument("--envs", default="Pusher-v5,Reacher-v5",
+                    help="--wrapper: stock Gymnasium MuJoCo env ids, comma-separated")
+    ap.add_argument("--width", type=int, default=64, help="--wrapper: image width, px")
+    ap.add_argument("--height", type=int, default=None, help="--wrapper: (default: width)")
+    ap.add_argument("--steps", type=int, default=100, help="--wrapper: timed steps")
+    ap.add_argument("--preset", default="physical", help="--wrapper: the emulator preset")
     ap.add_argument("--task", choices=("nav", "arm", "both"), default="both")
     ap.add_argument("--condition", default="nominal")
     ap.add_argument("--scenario", default=None)
@@ -149,6 +242,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", metavar="FILE", help="write the results here")
     args = ap.parse_args(argv)
+    if args.wrapper:
+        return main_wrapper(args)
     tasks = ("nav", "arm") if args.task == "both" else (args.task,)
     repeats = 1 if args.quick else args.repeats
     report = {"bench": "env", "quick": args.quick, "cpus": os.cpu_count(),
