@@ -13,7 +13,7 @@ export MUJOCO_GL ?= egl
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(VPY) || $(PY) -m venv $(VENV)
 	$(VPY) -m pip install --quiet --upgrade pip
-	$(VPY) -m pip install --quiet -c constraints.txt -e '.[test,ray,gym,view,formats]'
+	$(VPY) -m pip install --quiet -c constraints.txt -e '.[test,ray,gym,view,formats,lerobot]'
 	@touch $(STAMP)
 
 venv: $(STAMP)

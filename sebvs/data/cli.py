@@ -24,10 +24,17 @@ def _export(args) -> int:
     import sys
 
     from ..extras import MissingExtra
-    from .export_mcap import export_mcap
     try:
-        info = export_mcap(args.dataset, args.out, progress=not args.quiet,
-                           compression=args.compression, force=args.force)
+        if args.format == "lerobot":
+            from .export_lerobot import export_lerobot
+            info = export_lerobot(args.dataset, args.out, progress=not args.quiet,
+                                  force=args.force, compression=args.compression)
+            for note in info["notes"]:
+                print(f"sebvs data export: note: {note}", file=sys.stderr)
+        else:
+            from .export_mcap import export_mcap
+            info = export_mcap(args.dataset, args.out, progress=not args.quiet,
+                               compression=args.compression, force=args.force)
     except (ValueError, OSError, MissingExtra) as exc:
         print(f"sebvs data export: {exc}", file=sys.stderr)
         return 2
@@ -127,7 +134,8 @@ def register(sub) -> None:
                    help="differences shown per episode (default 10)")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=_compare)
-    x = dsub.add_parser("export", help="write episodes as ROS 2 bags (MCAP)",
+    x = dsub.add_parser("export", help="write episodes as ROS 2 bags (MCAP) or a LeRobot "
+                                       "dataset",
                         description="Write each episode as one MCAP file of ROS 2 messages "
                                     "that Foxglove and `ros2 bag` open: the RGB frames "
                                     "(sensor_msgs/Image on /camera/image_raw), the raw "
@@ -140,21 +148,29 @@ def register(sub) -> None:
                                     "stamped with the simulation time. Prints a JSON "
                                     "summary; exit 2 when DATASET is not a dataset or an "
                                     "episode, or OUT cannot be written. Needs pip install "
-                                    "'sebvs[formats]' (docs/formats.md).")
+                                    "'sebvs[formats]' (docs/formats.md). --format lerobot "
+                                    "writes a LeRobotDataset v3.0 folder instead: parquet "
+                                    "frames, one mp4 per camera, meta/info.json, stats.json, "
+                                    "episodes and tasks (pip install 'sebvs[lerobot]').")
     x.add_argument("dataset", metavar="DATASET",
                    help="dataset directory (index.json) or one episode .h5 file")
-    x.add_argument("--format", choices=("mcap",), default="mcap",
-                   help="output format (default mcap: ROS 2 messages, CDR)")
+    x.add_argument("--format", choices=("mcap", "lerobot"), default="mcap",
+                   help="output format (default mcap: ROS 2 messages, CDR; lerobot: a "
+                        "LeRobotDataset v3.0 folder)")
     x.add_argument("--out", metavar="FILE_OR_DIR", default=None,
                    help="a dataset exports into this folder (default DATASET/mcap/, one "
                         "episode_NNNN.mcap per episode); one episode into this file, or "
-                        "into this folder as <episode>.mcap (default: beside it)")
+                        "into this folder as <episode>.mcap (default: beside it). lerobot: "
+                        "the dataset folder to make, which must not exist (default "
+                        "DATASET/lerobot/, or EPISODE_lerobot/ beside one episode)")
     x.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
-                   help="MCAP chunk compression (default zstd; every MCAP reader has it)")
+                   help="MCAP chunk compression, or lerobot's parquet compression (default "
+                        "zstd; every MCAP and parquet reader has it)")
     x.add_argument("--quiet", action="store_true", help="no progress bar")
     x.add_argument("--force", action="store_true",
                    help="replace .mcap files that exist (never an episode, the index or "
-                        "the source)")
+                        "the source); lerobot: replace an earlier LeRobot export of sebvs "
+                        "at --out (nothing else)")
     x.set_defaults(func=_export)
 
     r = sub.add_parser("record", help="record expert demonstrations into a dataset",
