@@ -32,10 +32,13 @@ ENV_IDS_IDEAL8 = {"nav": "SEBVS/ERPNav-v0", "arm": "SEBVS/ERPArm-v0"}
 
 for _task in ENV_IDS:
     _entry = f"sebvs.envs.erp:ERP{_task.capitalize()}Env"
+    # N scenes in one process (sebvs/envs/vector.py): make_vec's "vector_entry_point" mode
+    _vector_entry = f"sebvs.envs.vector:ERP{_task.capitalize()}VectorEnv"
     for _id, _kwargs in ((ENV_IDS[_task], {}),
                          (ENV_IDS_IDEAL8[_task], {"condition": DEFAULT_CONDITION["ideal8"]})):
         if _id not in gymnasium.registry:
-            gymnasium.register(id=_id, entry_point=_entry, kwargs=_kwargs)
+            gymnasium.register(id=_id, entry_point=_entry, vector_entry_point=_vector_entry,
+                               kwargs=_kwargs)
 
 __all__ = ["ENV_IDS", "ENV_IDS_IDEAL8", "ERPArmEnv", "ERPEnv", "ERPNavEnv", "ExpertPolicy",
            "OBS_KEYS"]
