@@ -13,7 +13,8 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
   proprio  sim (optional): arrays["proprio"] (D,) float32 at each control tick, meta names:
            the robot's proprioception (sebvs/sim/proprio.py), stored as the dataset
            `proprio` [T, D] with the attribute proprio_names
-  action   expert or policy: arrays["action"] (2,) (nav) or ["pose"] (6,) (arm);
+  action   expert or policy: arrays["action"] (2,) (nav), ["pose"] (6,) (arm) or
+           ["action"] (nu,) (mjcf: a policy's, or the sim's scripted command);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
 raw_events = true with no `raw` input wired is refused when the topology loads, in one line
@@ -107,7 +108,8 @@ class Recorder(Actor):
         episodes: Annotated[int, Range(ge=0)] = 0
         raw_events: bool = False         # also store raw events x, y, t, p when sent
         compression: Literal["lzf", "gzip", "none"] = "lzf"
-        task: Literal["auto", "nav", "arm"] = "auto"   # auto: from the action's array name
+        # auto: "mjcf" for the mjcf scene's episodes, else from the action's array name
+        task: Literal["auto", "nav", "arm", "mjcf"] = "auto"
         topology: str = ""               # topology file, stored as an attribute (sebvs record sets it)
         # the overrides the run was started with beyond the file (sebvs record sets them:
         # the sensor pair's and a named condition's as mappings, the --set lines as typed):

@@ -16,6 +16,13 @@ Output `proprio`  arrays["proprio"] float32 (D,): the robot's proprioception at 
                   Gymnasium environments' observation "proprio"), the tick and t_sim of that
                   state sample. meta: names (one per component), episode. Sent only where a
                   topology consumes it (the recorder: observation.state of a dataset).
+Output `action`   arrays["action"] float64 (nu,): the scene's scripted command of each control
+                  tick (scenes with a script: mjcf, sebvs/sim/mjcf_scene.py), which the sim
+                  applies itself when `action` is not wired. Sent at every control tick,
+                  the episode's last included, with meta episode, source "scripted"; the
+                  tick and t_sim of the tick's state. A recorder records it as the tick's
+                  command; a LockstepRecorder passing it back to `action` paces the sim to
+                  the recorded chain (topologies/mjcf_reacher.toml). Nav and arm send none.
 Output `episode`  meta {event: "start" | "end", episode, seed, reason, scene, config, steps;
                   end also t_ep, outcome: scene.finish()'s result (the arm's grasp of
                   its last command), {} after a divergence or a stop, and health: the
@@ -43,6 +50,10 @@ the label off the robot's own motion (the ego-motion events of the command it is
 nor meet states that the expert never left in the data. The noisy command is clipped by the
 scene like any other (nav: [-1, 1]).
 
+Scene "mjcf" (your own MJCF file, config path/package/camera/...: sebvs/sim/mjcf_scene.py) is
+checked when the topology loads (check_wiring): a file that does not exist, does not compile
+or has no such camera is one line naming it before any process starts.
+
 A command with NaN/inf (or the wrong shape) is rejected: error in the log, telemetry
 "command_rejected", the last good command stays. Divergence (sebvs.sim.stability) ends the
 episode with its reason before the bad state is published: NaN never leaves this actor.
@@ -64,12 +75,36 @@ from sebvs.sim.stepper import NOISE_STREAM, SceneStepper, episode_seed  # noqa: 
 
 class Sim(Actor):
     inputs = ("action",)
-    outputs = ("state", "proprio", "episode")
+    outputs = ("state", "proprio", "episode", "action")
+
+    @classmethod
+    def check_wiring(cls, params: "Sim.Params", connected: frozenset) -> str | None:
+        """What the topology loader refuses before a process starts: an mjcf scene whose
+        config cannot be built (sebvs/sim/mjcf_scene.py: no such file, an MJCF that does
+        not compile, a camera the model does not have). Nav and arm are built at setup,
+        as before.
+
+        Parameters:
+            params: the sim's parameters as the topology sets them.
+            connected: the names of its wired inputs.
+
+        Returns:
+            One line naming what is wrong, or None.
+        """
+        if params.scene != "mjcf":
+            return None
+        from sebvs.sim import make_scene
+        try:
+            make_scene("mjcf", **params.config)
+        except (ValueError, TypeError) as exc:
+            return f"key 'config': {exc}"
+        return None
 
     @dataclass
     class Params:
-        scene: Literal["nav", "arm"] = "nav"
-        config: dict = field(default_factory=dict)   # scene config: variant, conditions...
+        scene: Literal["nav", "arm", "mjcf"] = "nav"
+        # scene config: variant, conditions...; mjcf: path, camera, ... (mjcf_scene.py)
+        config: dict = field(default_factory=dict)
         # per-episode draws over config keys (sebvs/sim/randomise.py): {} = every episode
         # plays `config` as given
         randomise: dict = field(default_factory=dict)
@@ -264,6 +299,8 @@ class Sim(Actor):
                                 t_sim=self.t_offset + data.time, tick=self.tick)
                 if control and "proprio" in self.consumed:
                     await self._emit_proprio(k)
+                if control and self.script is not None:
+                    await self._scripted(k)
                 if control and self.deadlines is not None and not core.at_end:
                     self._tick_published()
                 if control and not core.at_end:
@@ -308,6 +345,22 @@ class Sim(Actor):
         self.log.info("episode %d (seed %d) ended: %s after %d steps%s", k, seed, reason, step,
                       f"; {outcome['outcome']}" if "outcome" in outcome else "")
         self.t_offset += t_ep
+
+    async def _scripted(self, k: int) -> None:
+        """The scene's scripted command of this tick: applied where no actor commands the
+        sim, and sent on `action` (the tick's recorded command)."""
+        core = self.core
+        cmd = np.asarray(self.script(core.model, core.data), dtype=np.float64)
+        if "action" not in self.connected and not core.at_end:
+            self._apply(cmd, self.tick)
+        await self.emit("action", {core.scene.command_name: cmd},
+                        meta={"episode": k, "source": "scripted"},
+                        t_sim=self.t_offset + core.data.time, tick=self.tick)
+
+    @property
+    def script(self):
+        """The scene's scripted_command(model, data), or None for a scene without one."""
+        return getattr(self.core.scene, "scripted_command", None)
 
     async def _emit_proprio(self, k: int) -> None:
         """The control sample's proprioception, stamped as its state sample."""

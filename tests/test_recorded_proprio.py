@@ -102,8 +102,8 @@ def test_nav_odometry_is_the_base_velocity_in_the_robot_frame():
 
 
 def test_an_unknown_scene_has_no_proprioception():
-    with pytest.raises(ValueError, match="scene 'mjcf' has no proprioception"):
-        proprio_reader("mjcf", None, None)
+    with pytest.raises(ValueError, match="scene 'no_such_scene' has no proprioception"):
+        proprio_reader("no_such_scene", None, None)
 
 
 # ---------------------------------------------------------------- the recorder

@@ -2,7 +2,7 @@
 
 For each indexed episode: the file exists, its sha256 and byte size match, it opens, its
 datasets have consistent lengths and shapes (rgb [T,H,W,3] uint8, events/frame [T,2K,h,w],
-target [T,2|6], t_sim/tick/latency [T], ticks increasing), T equals the index's frame
+target [T,2|6|nu], t_sim/tick/latency [T], ticks increasing), T equals the index's frame
 count, and the required attributes are present; where an episode holds proprioception
 (``proprio`` [T, D]), its rows, their finiteness and its ``proprio_names``. Also reported:
 ``*.partial`` files (lost in-progress episodes: never used), episode files that the index
@@ -99,8 +99,11 @@ def _check_contents(name: str, ep, entry: dict, task: str | None) -> list[str]:
         if ev.ndim != 4 or ev.shape[0] != T or ev.shape[1] < 2 or ev.shape[1] % 2:
             problems.append(f"{name}: events/frame is {ev.shape}, expected [{T}, 2K, h, w]")
     dim = TASK_TARGET[ep.task][1]
+    if dim is None and ep.target.ndim == 2:
+        dim = ep.target.shape[1]        # mjcf: the model's actuators, any number
     if ep.target.shape != (T, dim):
-        problems.append(f"{name}: {ep.target_key} is {ep.target.shape}, expected [{T}, {dim}]")
+        problems.append(f"{name}: {ep.target_key} is {ep.target.shape}, expected [{T}, "
+                        f"{dim or 'nu'}]")
     cols = {"t_sim": ep.t_sim, "tick": ep.tick, **{f"latency/{k}": v for k, v in
                                                      ep.latency.items()},
             **{f"truth/{k}": v for k, v in ep.truth.items()}}

@@ -11,6 +11,8 @@ Layout of ``episode_NNNN.h5`` (T frames, one row per control tick):
     events/offset  [T + 1]       int64    events of frame k are [offset[k], offset[k+1])
     action         [T, 2]        float32  nav command [v, w] in [-1, 1]     (task "nav")
     pose           [T, 6]        float32  arm pre-grasp pose [x,y,z,r,p,y]  (task "arm")
+    action         [T, nu]       float32  actuator commands of an mjcf scene (task "mjcf":
+                                          one per actuator, sebvs/sim/mjcf_scene.py)
     t_sim          [T]           float64  simulation time of the observation, s
     tick           [T]           int64    control tick index
     latency/<hop>  [T]           float32  per-frame hop latency, microseconds (NaN: not seen)
@@ -43,7 +45,8 @@ import sebvs
 
 from ..h5named import FileUnreadable, first_line, named, open_h5
 
-TASK_TARGET = {"nav": ("action", 2), "arm": ("pose", 6)}
+# task -> (target dataset, its width); None: the model's (mjcf: nu), fixed by the first row
+TASK_TARGET = {"nav": ("action", 2), "arm": ("pose", 6), "mjcf": ("action", None)}
 PARTIAL = ".partial"
 # attributes stored as JSON text (dicts/lists); decoded by Episode.attrs
 JSON_ATTRS = ("conditions", "topology", "emulator")
@@ -83,7 +86,8 @@ class EpisodeWriter:
 
     Args:
         path: final file name (e.g. ``datasets/nav/episode_0003.h5``).
-        task: "nav" (target ``action`` [2]) or "arm" (target ``pose`` [6]).
+        task: "nav" (target ``action`` [2]), "arm" (target ``pose`` [6]) or "mjcf"
+            (target ``action`` [nu], nu from the first frame).
         attrs: file attributes (scene, conditions, seed, topology, emulator, event_scale,
             event_offset, ...). Missing required ones are written empty so every file has
             the same keys; ``version`` and ``task`` are filled in here.
@@ -98,7 +102,7 @@ class EpisodeWriter:
     def __init__(self, path: str | Path, task: str, attrs: dict | None = None,
                  compression: str = "lzf"):
         if task not in TASK_TARGET:
-            raise ValueError(f"unknown task {task!r} (nav, arm)")
+            raise ValueError(f"unknown task {task!r} ({', '.join(TASK_TARGET)})")
         if compression not in COMPRESSIONS:
             raise ValueError(f"unknown compression {compression!r} ({', '.join(COMPRESSIONS)})")
         self.path = Path(path)
@@ -166,10 +170,12 @@ class EpisodeWriter:
         event_frame and raw_events must be given in every frame or in none; latency,
         truth, modality and proprio may be missing (NaN / empty there).
         """
-        target = action if self.task == "nav" else pose
+        target = pose if self.target_key == "pose" else action
         if target is None:
             raise ValueError(f"task {self.task!r} needs {self.target_key}=")
         target = np.asarray(target, np.float32).reshape(-1)
+        if self.target_dim is None:
+            self.target_dim = target.size       # mjcf: the model's nu, the same every row
         if target.shape != (self.target_dim,):
             raise ValueError(f"{self.target_key} must have {self.target_dim} values, "
                              f"got shape {target.shape}")
@@ -312,7 +318,7 @@ class EpisodeWriter:
     def _write_columns(self) -> None:
         n, f = self.frames, self.f
         f.create_dataset(self.target_key, data=np.asarray(self._target, np.float32)
-                         .reshape(n, self.target_dim))
+                         .reshape(n, self.target_dim or 0))
         f.create_dataset("t_sim", data=np.asarray(self._t_sim, np.float64).reshape(n))
         f.create_dataset("tick", data=np.asarray(self._tick, np.int64).reshape(n))
         for hop, rows in self._latency.items():

@@ -61,6 +61,8 @@ ACTION_NAMES = {"nav": ("v", "w"), "arm": ("x", "y", "z", "roll", "pitch", "yaw"
 TASK_TEXT = {"nav": "drive to the red target cube and follow it",
              "arm": "move the gripper to the pre-grasp pose above the object"}
 ROBOT_TYPE = {"nav": "sebvs_nav_diff_drive", "arm": "sebvs_ur5"}
+# anyone's MJCF (scene "mjcf"): the model's actuators, whatever drove them
+OTHER_TASK_TEXT = "drive the model's actuators as recorded"
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
 QUANTILE_KEYS = tuple(f"q{round(q * 100):02d}" for q in QUANTILES)
 # LeRobot's own columns, every dataset has them
@@ -75,7 +77,8 @@ class Layout:
     """What every episode of the export shares, read before anything is written.
 
     Parameters:
-        task: "nav" or "arm".
+        task: "nav", "arm" or "mjcf" (anyone's model: its actuators' commands).
+        action_width: the command's length.
         fps: frames per second (the control rate the episodes were recorded at).
         camera: the camera's name, the video feature's last part.
         rgb_hw: (H, W) of the RGB frames.
@@ -84,6 +87,7 @@ class Layout:
         frames: frames of each episode, in order.
     """
     task: str
+    action_width: int
     fps: int
     camera: str
     rgb_hw: tuple[int, int]
@@ -165,7 +169,7 @@ def plan(episodes: list[Path]) -> tuple[Layout, list[str]]:
                     names = tuple(f"proprio_{i}" for i in range(proprio.shape[1]))
                 state = names
             this = {"task": ep.task, "camera": _camera_name(ep), "rgb": tuple(ep.rgb.shape[1:3]),
-                    "events": events, "state": state}
+                    "events": events, "state": state, "action": int(ep.target.shape[1])}
             fps = _fps(path, np.asarray(ep.t_sim[:], np.float64))
             frames.append(len(ep))
         if fps is not None and rate is None:
@@ -180,6 +184,7 @@ def plan(episodes: list[Path]) -> tuple[Layout, list[str]]:
             first = {**this, "path": path}
             continue
         for key, what in (("task", "task"), ("camera", "camera"), ("rgb", "RGB size (H, W)"),
+                          ("action", "command length"),
                           ("events", "event frame shape (C, H, W)"),
                           ("state", "proprioception components")):
             if this[key] != first[key] and not (key in ("events", "state")
@@ -206,7 +211,7 @@ def plan(episodes: list[Path]) -> tuple[Layout, list[str]]:
                      f"recordings stored it, or without the sim's proprio wired)")
     if without_events:
         notes.append(f"no {EVENTS_KEY}: the episodes hold no event frames")
-    layout = Layout(task=first["task"], fps=rate[0], camera=first["camera"],
+    layout = Layout(task=first["task"], action_width=first["action"], fps=rate[0], camera=first["camera"],
                     rgb_hw=(int(h), int(w)), events_shape=first["events"],
                     state_names=first["state"], frames=tuple(frames))
     return layout, notes
@@ -474,7 +479,8 @@ def _features(layout: Layout, codec: str) -> dict:
     if layout.state_names is not None:
         feats[STATE_KEY] = {"dtype": "float32", "shape": [len(layout.state_names)],
                             "names": list(layout.state_names)}
-    names = ACTION_NAMES[layout.task]
+    names = ACTION_NAMES.get(layout.task) or tuple(f"ctrl_{i}"
+                                                   for i in range(layout.action_width))
     feats[ACTION_KEY] = {"dtype": "float32", "shape": [len(names)], "names": list(names)}
     for key, dtype in DEFAULT_FEATURES.items():
         feats[key] = {"dtype": dtype, "shape": [1], "names": None}
@@ -495,7 +501,7 @@ def _write_dataset(root: Path, episodes: list[Path], layout: Layout, encoder: st
     content."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    task_text = TASK_TEXT[layout.task]
+    task_text = TASK_TEXT.get(layout.task, OTHER_TASK_TEXT)
     data = RollingFiles(root, DATA_PATH, DATA_FILE_MB)
     videos = RollingFiles(root, VIDEO_PATH, VIDEO_FILE_MB, video_key=layout.video_key)
     h, w = layout.rgb_hw
@@ -579,7 +585,7 @@ def _write_dataset(root: Path, episodes: list[Path], layout: Layout, encoder: st
     pq.write_table(_tasks_table(pa, [task_text]), root / TASKS_PATH)
     stats = {feat: aggregate_stats([p[feat] for p in stats_parts]) for feat in stats_parts[0]}
     (root / STATS_PATH).write_text(json.dumps(_jsonable(stats), indent=2))
-    info = {"codebase_version": CODEBASE_VERSION, "robot_type": ROBOT_TYPE[layout.task],
+    info = {"codebase_version": CODEBASE_VERSION, "robot_type": ROBOT_TYPE.get(layout.task, f"sebvs_{layout.task}"),
             "total_episodes": len(episodes), "total_frames": start, "total_tasks": 1,
             "chunks_size": CHUNKS_SIZE, "data_files_size_in_mb": DATA_FILE_MB,
             "video_files_size_in_mb": VIDEO_FILE_MB, "fps": layout.fps,

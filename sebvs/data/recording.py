@@ -212,7 +212,9 @@ class EpisodeRecorder:
             return [d for d in done if d]
         attrs = fields.pop("attrs", None) or {}
         if ep.writer is None:
-            task = self.task or ("nav" if fields.get("action") is not None else "arm")
+            # an mjcf scene's commands travel as "action" too, any number of them
+            task = self.task or ("mjcf" if ep.info.get("scene") == "mjcf" else
+                                 "nav" if fields.get("action") is not None else "arm")
             if self.index.task not in (None, task):
                 raise ValueError(f"{self.root}: dataset holds task {self.index.task!r}, "
                                  f"the stream sends {task!r} targets")
@@ -291,7 +293,8 @@ class EpisodeRecorder:
         return sum(e.writer.frames for e in self.open if e.writer is not None)
 
 
-TASK_OF_KEY = {key: task for task, (key, _) in TASK_TARGET.items()}
+# the tasks a command's array name tells apart (mjcf's "action" is told by its scene)
+TASK_OF_KEY = {key: task for task, (key, dim) in TASK_TARGET.items() if dim is not None}
 
 
 class SpaceReserve:

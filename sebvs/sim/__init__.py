@@ -1,4 +1,4 @@
-"""MuJoCo scenes (nav, arm), rendering and stability checks.
+"""MuJoCo scenes (nav, arm, and anyone's MJCF file: mjcf), rendering and stability checks.
 
 `make_scene(name, **config)` is the one entry point actors use; scene modules are imported
 lazily so a nav-only process never imports the arm (and vice versa).
@@ -18,11 +18,12 @@ from .scene import Scene
 SCENES: dict[str, str] = {
     "nav": "sebvs.sim.nav:NavScene",
     "arm": "sebvs.sim.arm:ArmScene",
+    "mjcf": "sebvs.sim.mjcf_scene:MjcfScene",     # your own MJCF file (docs/own_robot.md)
 }
 
 
 def make_scene(name: str, **config) -> Scene:
-    """Build the scene `name` ("nav" | "arm") from its config; ValueError on a bad name/key."""
+    """Build the scene `name` ("nav" | "arm" | "mjcf") from its config; ValueError on a bad name/key."""
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r} (known: {', '.join(sorted(SCENES))})")
     module, cls = SCENES[name].split(":")

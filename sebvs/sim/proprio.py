@@ -14,6 +14,7 @@ robot-learning dataset's `observation.state` can be filled from a recording.
     nav  the drive's odometry in the robot's frame: forward and lateral speed (m/s) and
          yaw rate (rad/s), from the base's planar joints x, y, yaw
     arm  the UR5's six joint angles (rad) and the two fingers' positions (m)
+    mjcf every joint's qpos, then its qvel (sebvs/sim/mjcf_scene.py: anyone's model)
 """
 from __future__ import annotations
 
@@ -79,11 +80,15 @@ def _arm(scene, model) -> ProprioReader:
                          read)
 
 
-READERS = {"nav": _nav, "arm": _arm}
+def _mjcf(scene, model) -> ProprioReader:
+    return scene.proprio_reader(model)
+
+
+READERS = {"nav": _nav, "arm": _arm, "mjcf": _mjcf}
 
 
 def proprio_reader(scene_name: str, scene, model) -> ProprioReader:
-    """The reader of scene `scene_name` ("nav" | "arm"), built once per compiled model.
+    """The reader of scene `scene_name` ("nav" | "arm" | "mjcf"), built once per compiled model.
 
     Parameters:
         scene_name: the scene's name in sebvs.sim.SCENES.
