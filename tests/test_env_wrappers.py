@@ -80,3 +80,32 @@ def test_record_video_writes_the_episode(tmp_path):
         env.close()
     videos = sorted((tmp_path / "videos").glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 0
+
+
+ALL_KEYS = {**SHORT, "obs": ("rgb", "events", "proprio")}
+
+
+@pytest.mark.parametrize("task, camera", [("nav", "front"), ("arm", "wrist")])
+def test_the_lerobot_layout_names_what_lerobot_eval_reads(task, camera):
+    """obs_layout="lerobot": pixels {camera: rgb} and agent_pos, the keys lerobot-eval maps
+    to observation.images.<camera> and observation.state (the export's names)."""
+    env = gym.make(ENV_IDS[task], obs_layout="lerobot", **ALL_KEYS)
+    try:
+        obs, _ = env.reset(seed=1)
+        space = env.observation_space
+        assert set(obs) == set(space.spaces) == {"pixels", "agent_pos", "events"}
+        assert set(obs["pixels"]) == {camera}
+        assert obs["pixels"][camera].shape == space["pixels"][camera].shape
+        assert obs["pixels"][camera].dtype == np.uint8 and obs["pixels"][camera].shape[-1] == 3
+        assert space.contains(obs)
+        plain = gym.make(ENV_IDS[task], **ALL_KEYS)
+        try:
+            ref, _ = plain.reset(seed=1)
+            assert np.array_equal(ref["rgb"], obs["pixels"][camera])
+            assert np.array_equal(ref["proprio"], obs["agent_pos"])
+        finally:
+            plain.close()
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="obs_layout must be one of sebvs, lerobot"):
+        gym.make(ENV_IDS[task], obs_layout="lerobot2", **SHORT)

@@ -28,6 +28,9 @@ from sebvs.runtime.topology import check_seed
 from sebvs.sensor_pairs import DEFAULT_CONDITION, DEFAULT_SENSOR
 
 OBS_KEYS = ("rgb", "events", "proprio")
+# the observation's keys as the env's own, or as lerobot-eval reads a Gymnasium env's
+OBS_LAYOUTS = ("sebvs", "lerobot")
+LEROBOT_KEYS = {"rgb": "pixels", "proprio": "agent_pos"}
 TASK_SCENARIO = {name: spec.default_scenario for name, spec in TASKS.items()}
 
 
@@ -122,6 +125,10 @@ class ERPEnv(gymnasium.Env):
       control_hz   control ticks per second, one per step (None: the topology's 10 Hz)
       episode_s    episode length, s (None: the topology's: nav 30, arm 2)
       obs          the observation's keys, any of "rgb", "events", "proprio"
+      obs_layout   "sebvs" (those keys) | "lerobot": the keys lerobot-eval maps, "pixels"
+                   ({camera: rgb}, to observation.images.<camera>) and "agent_pos" (the
+                   proprio, to observation.state), as `sebvs data export --format lerobot`
+                   names them; "events" keeps its name
       bins         event frames as a voxel grid of this many time bins (float32)
       representation  "counts" (default) | "histogram" | "voxel"
       privileged   info also carries the expert's inputs: "ideal" (the ideal 8-bit
@@ -144,7 +151,7 @@ class ERPEnv(gymnasium.Env):
                  obs: tuple | list = OBS_KEYS, bins: int | None = None,
                  representation: str | None = None, privileged: bool = False,
                  render_mode: str | None = None, seed: int = 0,
-                 overrides: list | tuple = ()) -> None:
+                 overrides: list | tuple = (), obs_layout: str = "sebvs") -> None:
         from sebvs.dvs.params import preset
         from sebvs.dvs.stream import FrameStream, SensorStream
         from sebvs.sensors.camera import CameraCore
@@ -154,6 +161,10 @@ class ERPEnv(gymnasium.Env):
         if unknown or not obs or len(set(obs)) != len(obs):
             raise ValueError(f"obs must name some of {', '.join(OBS_KEYS)} once each, "
                              f"got {obs!r}")
+        if obs_layout not in OBS_LAYOUTS:
+            raise ValueError(f"obs_layout must be one of {', '.join(OBS_LAYOUTS)}, got "
+                             f"{obs_layout!r}")
+        self.obs_layout = obs_layout
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode {render_mode!r} is not None or 'rgb_array'")
         self.obs_keys, self.render_mode, self.privileged = obs, render_mode, bool(privileged)
@@ -206,7 +217,9 @@ class ERPEnv(gymnasium.Env):
             lo, hi = self._proprio_bounds()
             spaces_["proprio"] = spaces.Box(lo.astype(np.float32), hi.astype(np.float32),
                                             lo.shape, np.float32)
-        self.observation_space = spaces.Dict(spaces_)
+        # the name `sebvs data export --format lerobot` gives the video feature
+        self.camera_name = str(getattr(cp, "camera", "") or scene.cameras[0])
+        self.observation_space = spaces.Dict(self._laid_out(spaces_, spaces.Dict))
         self.action_space = self._action_space()
         self.episode = -1
         self.t_offset = 0.0
@@ -309,7 +322,21 @@ class ERPEnv(gymnasium.Env):
         if "proprio" in self.obs_keys:
             obs["proprio"] = self._proprio().astype(np.float32)
         self._last_rgb = self._parts.get("rgb")
-        return obs
+        return self._laid_out(obs, dict)
+
+    def _laid_out(self, parts: dict, mapping=dict) -> dict:
+        """The observation (or its spaces) under obs_layout's keys: unchanged for "sebvs";
+        for "lerobot", rgb as pixels {camera: rgb} (`mapping` builds that inner dict: a
+        spaces.Dict for the spaces) and proprio as agent_pos."""
+        if self.obs_layout == "sebvs":
+            return parts
+        out = {}
+        for key, value in parts.items():
+            if key == "rgb":
+                out["pixels"] = mapping({self.camera_name: value})
+            else:
+                out[LEROBOT_KEYS.get(key, key)] = value
+        return out
 
     def _info(self) -> dict:
         # "episode" is Gymnasium's: RecordEpisodeStatistics (and every trainer reading
