@@ -12,3 +12,19 @@ def print_report(report: dict, path: str | None) -> None:
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         Path(path).write_text(text)
+
+
+def counts_arg(flag: str):
+    """argparse's type for a comma-separated list of counts >= 1 (`--tiles 1,2,4`), its
+    errors naming ``flag``."""
+    import argparse
+
+    def parse(text: str) -> tuple[int, ...]:
+        try:
+            values = tuple(int(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} {text!r}: give integers, e.g. 1,2,4")
+        if not values or min(values) < 1:
+            raise argparse.ArgumentTypeError(f"{flag} {text!r}: every count must be >= 1")
+        return values
+    return parse

@@ -304,16 +304,7 @@ class EventEmulator:
             lp = self._lowpass_linear(luma, target, dt)
         elif p.cutoff_hz > 0:
             tau = 1.0 / (2 * math.pi * p.cutoff_hz)
-            if luma.dtype == np.uint8:   # one exponential per DN value, not per pixel
-                eps = _lookup(luma, self._eps_table(dt / tau))
-            else:
-                # in place, the operations of -expm1(-((x + 20) / 275) * dt / tau)
-                eps = luma + np.float32(20.0)
-                eps /= np.float32(275.0)
-                np.negative(eps, out=eps)
-                eps *= np.float32(dt / tau)
-                np.expm1(eps, out=eps)
-                np.negative(eps, out=eps)
+            eps = self._lowpass_gain(luma, dt / tau)
             lp = np.subtract(target, self.lp, out=target)   # reuse: target is not needed after
             lp *= eps
             lp += self.lp
@@ -367,6 +358,20 @@ class EventEmulator:
                           (-np.expm1(-k) / k).astype(np.float32))
             self._ramp_key = dt_over_tau
         return self._ramp
+
+    def _lowpass_gain(self, luma: np.ndarray, dt_over_tau: float) -> np.ndarray:
+        """The step low-pass's gain per pixel over one interval, 1 - exp(-a(x) dt / tau)
+        with the bandwidth a(x) = (x + 20) / 275 of the pixel's level x (float32 [H, W])."""
+        if luma.dtype == np.uint8:   # one exponential per DN value, not per pixel
+            return _lookup(luma, self._eps_table(dt_over_tau))
+        # in place, the operations of -expm1(-((x + 20) / 275) * dt / tau)
+        eps = luma + np.float32(20.0)
+        eps /= np.float32(275.0)
+        np.negative(eps, out=eps)
+        eps *= np.float32(dt_over_tau)
+        np.expm1(eps, out=eps)
+        np.negative(eps, out=eps)
+        return eps
 
     def _eps_table(self, dt_over_tau: float) -> np.ndarray:
         """The low-pass gain per DN value for this dt / tau; a camera at a fixed rate sends

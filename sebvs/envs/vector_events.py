@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sebvs.dvs.emulator import (EventEmulator, _lookup, linlog, linlog_linear,
+from sebvs.dvs.emulator import (EventEmulator, linlog, linlog_linear,
                                 pixel_time_order)
 
 # event rows are uint16 (EVENT_DTYPE's "y"): a stack holds at most this many rows
@@ -308,16 +308,7 @@ def _step_stack(emus: list[EventEmulator], frames: list[np.ndarray], t_ns: int, 
     lp0 = stacked("lp")
     if p.cutoff_hz > 0:
         tau = 1.0 / (2 * math.pi * p.cutoff_hz)
-        if luma.dtype == np.uint8:
-            eps = _lookup(luma, emus[0]._eps_table(dt / tau))
-        else:
-            # the operations of EventEmulator._step, in its order (float32 throughout)
-            eps = luma + np.float32(20.0)
-            eps /= np.float32(275.0)
-            np.negative(eps, out=eps)
-            eps *= np.float32(dt / tau)
-            np.expm1(eps, out=eps)
-            np.negative(eps, out=eps)
+        eps = emus[0]._lowpass_gain(luma, dt / tau)    # EventEmulator._step's, per pixel
         lp = np.subtract(target, lp0, out=target)
         lp *= eps
         lp += lp0

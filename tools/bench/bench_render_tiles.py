@@ -46,7 +46,7 @@ from sebvs.output_guard import OutputRefused, check_output_file  # noqa: E402
 from sebvs.sim import make_scene  # noqa: E402
 from sebvs.sim.radiance import RadianceRenderer  # noqa: E402
 from sebvs.sim.tiles import RadianceTiles, TileRenderer  # noqa: E402
-from tools.benchio import print_report  # noqa: E402
+from tools.benchio import counts_arg, print_report  # noqa: E402
 
 cv2.setNumThreads(1)
 TILES = (1, 2, 4, 8, 16)
@@ -265,23 +265,13 @@ def run(size: int, variant: str, samples: int, repeats: int, tiles: tuple[int, .
     }
 
 
-def parse_tiles(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--tiles {text!r}: give integers, e.g. 1,2,4")
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"--tiles {text!r}: every count must be >= 1")
-    return values
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="48 samples, 3 repeats")
     ap.add_argument("--size", type=int, default=160, help="px, square (160)")
     ap.add_argument("--variant", choices=("indoor", "outdoor"), default="indoor")
-    ap.add_argument("--tiles", type=parse_tiles, default=TILES, help="1,2,4,8,16")
+    ap.add_argument("--tiles", type=counts_arg("--tiles"), default=TILES, help="1,2,4,8,16")
     ap.add_argument("--kinds", default="radiance,rgb", help="radiance,rgb")
     ap.add_argument("--samples", type=int, default=160, help="per repeat and path")
     ap.add_argument("--repeats", type=int, default=5)

@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from benchio import print_report  # noqa: E402
+from benchio import counts_arg, print_report  # noqa: E402
 from sebvs.output_guard import OutputRefused, check_output_file  # noqa: E402
 
 SIDES = ("shared", "shared1", "sync", "async")
@@ -206,21 +206,11 @@ def run(sides, counts, ticks: int, repeats: int, options: dict, seed: int,
     return report
 
 
-def parse_counts(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--envs {text!r}: give integers, e.g. 1,8")
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"--envs {text!r}: every count must be >= 1")
-    return values
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="32 env-ticks a run, 1 repeat")
-    ap.add_argument("--envs", type=parse_counts, default=(1, 8), help="env counts (1,8)")
+    ap.add_argument("--envs", type=counts_arg("--envs"), default=(1, 8), help="env counts (1,8)")
     ap.add_argument("--sides", default=",".join(SIDES), help="shared,shared1,sync,async")
     ap.add_argument("--ticks", type=int, default=96, help="env-ticks per run (96)")
     ap.add_argument("--repeats", type=int, default=3)
