@@ -14,7 +14,7 @@ from .shipped import topology_argument
 
 # subcommand modules with a `register(subparsers)`; each adds its own commands
 PLUGINS = ("sebvs.demo", "sebvs.dvs.cli", "sebvs.data.cli", "sebvs.policy.cli", "sebvs.eval.cli",
-           "sebvs.view.cli")
+           "sebvs.view.cli", "sebvs.probe.cli")
 
 
 def _seconds(text: str) -> float:
