@@ -115,16 +115,22 @@ def run_health(plan: EvalPlan, run: Run, episodes: list[dict]) -> dict:
             "never_acted": counted > 0 and sums["commands"] - sums["rejected"] <= 0}
 
 
-def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
-    path = plan.episode_file(run)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.unlink(missing_ok=True)
-    plan.health_file(run).unlink(missing_ok=True)
-    if plan.video:      # a rerun with fewer --video-episodes leaves no stale files behind
-        for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
-            old.unlink()
-    topology, overrides = plan.overrides(run)
-    sup = Supervisor(load_topology(topology, overrides), runs_dir=plan.out / "runs",
+def play_to_end(topology, overrides, runs_dir: Path, bar: tqdm, what: str) -> Supervisor:
+    """Run a topology to its end, its tracker's finished episodes moving `bar` on.
+
+    Parameters:
+        topology, overrides: what load_topology reads (a path and override layers).
+        runs_dir: where the run's directory goes.
+        bar: the progress bar, moved by the tracker actor's episodes_finished.
+        what: the run as an error names it.
+
+    Returns:
+        The stopped supervisor (its info, rundir).
+
+    Raises:
+        RunFailed: the run did not end cleanly, naming `what` and the failure.
+    """
+    sup = Supervisor(load_topology(topology, overrides), runs_dir=runs_dir,
                      echo=lambda text: tqdm.write(text))
     done_before = bar.n
     last_poll = [0.0]
@@ -146,7 +152,21 @@ def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
         sup.stop()
         raise
     if code != 0:
-        raise RunFailed(f"{run}: {sup.failure}")
+        raise RunFailed(f"{what}: {sup.failure}")
+    return sup
+
+
+def run_one(plan: EvalPlan, run: Run, bar: tqdm) -> list[dict]:
+    path = plan.episode_file(run)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.unlink(missing_ok=True)
+    plan.health_file(run).unlink(missing_ok=True)
+    if plan.video:      # a rerun with fewer --video-episodes leaves no stale files behind
+        for old in (plan.out / "videos").glob(f"{run.key}__ep*"):
+            old.unlink()
+    topology, overrides = plan.overrides(run)
+    done_before = bar.n
+    sup = play_to_end(topology, overrides, plan.out / "runs", bar, str(run))
     # the live actors' last stats, queried as the run stopped (an actor that ended
     # first, the sim, counts as of the supervisor's last stall round)
     _write_health(plan, run, handler_errors(sup.info.get("losses")))

@@ -107,8 +107,8 @@ def run_spec(cell: str, row: str, args) -> tuple[Path, dict]:
 
 
 def play(cell: str, row: str, args, bar) -> list[dict]:
-    from sebvs.runtime.supervisor import RunFailed, Supervisor
-    from sebvs.runtime.topology import load_topology
+    from sebvs.eval.run import play_to_end
+    from sebvs.runtime.supervisor import RunFailed
     path = episode_file(args.out, cell, row)
     done = read_lines(path, args.seed)
     if len(done) >= args.episodes:
@@ -117,28 +117,8 @@ def play(cell: str, row: str, args, bar) -> list[dict]:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
     topology, overrides = run_spec(cell, row, args)
-    sup = Supervisor(load_topology(topology, overrides), runs_dir=args.out / "runs",
-                     echo=lambda text: tqdm.write(text))
     start = bar.n
-    last = [0.0]
-
-    def poll(dt: float) -> None:
-        time.sleep(dt)
-        if time.monotonic() - last[0] < 0.5:
-            return
-        last[0] = time.monotonic()
-        reply = sup.request("tracker", {"cmd": "stats"}, 0.5)
-        if reply and reply.get("ok"):
-            bar.update(start + reply["result"]["actor_stats"]["episodes_finished"] - bar.n)
-
-    try:
-        sup.start()
-        code = sup.wait(None, poll)
-    except BaseException:
-        sup.stop()
-        raise
-    if code != 0:
-        raise RunFailed(f"{cell} {row}: {sup.failure}")
+    sup = play_to_end(topology, overrides, args.out / "runs", bar, f"{cell} {row}")
     lines = read_lines(path, args.seed)
     bar.update(start + len(lines) - bar.n)
     if len(lines) < args.episodes:
