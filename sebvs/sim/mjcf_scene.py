@@ -48,7 +48,9 @@ import mujoco
 import numpy as np
 
 from .mjcf_source import WHERE, CameraPose, add_camera, compile_spec, find_mjcf, load_spec
-from .model_scene import DEFAULT_LUX, UnknownCamera, camera_names, render_level
+from .model_scene import (DEFAULT_LUX, UnknownCamera, camera_names, check_size,
+                          default_photometry, kinematics_with_tendons, prepare_render,
+                          render_level)
 from .scene import Scene
 
 SCRIPTS = ("sine", "hold")
@@ -127,11 +129,7 @@ class MjcfScene(Scene):
         return name
 
     def _check_size(self) -> None:
-        for key in ("width", "height"):
-            v = self.config[key]
-            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 8192:
-                raise ValueError(f"{WHERE}: {key} must be an integer number of pixels in "
-                                 f"1..8192, got {v!r}")
+        check_size(self.config["width"], self.config["height"], WHERE)
         blur = self.config["rgb_blur"]
         if isinstance(blur, bool) or not isinstance(blur, int) or not 0 <= blur <= 64:
             raise ValueError(f"{WHERE}: rgb_blur must be an integer in 0..64, got {blur!r}")
@@ -201,18 +199,11 @@ class MjcfScene(Scene):
         model = copy.deepcopy(self.source_model)
         self.configure(model)
         h, w = self.image_shape()
-        g = model.vis.global_
-        g.offwidth, g.offheight = max(g.offwidth, w), max(g.offheight, h)
-        model.vis.quality.offsamples = 0
-        if not self.config["shadows"]:
-            model.vis.quality.shadowsize = 0
-            if model.nlight:
-                model.light_castshadow[:] = 0
+        prepare_render(model, w, h, shadows=bool(self.config["shadows"]))
         return model
 
     def photometry(self):
         """The model's MJCF lights scaled to the config's light (module docstring)."""
-        from .light import Photometry
         c = self.config
         if c["illuminance_lux"] is not None:
             lux = float(c["illuminance_lux"])
@@ -220,7 +211,7 @@ class MjcfScene(Scene):
             lux = math.pi * float(c["luminance_cd_m2"])    # a white Lambertian surface
         else:
             lux = DEFAULT_LUX
-        return Photometry(illuminance_lux=lux, render_level=render_level(self.source_model))
+        return default_photometry(self.source_model, lux)
 
     # -- episode -------------------------------------------------------------------------
     def reset(self, model, data, rng: np.random.Generator) -> None:
@@ -279,13 +270,7 @@ class MjcfScene(Scene):
 
         return ProprioReader(tuple(names), lo, hi, read)
 
-    @staticmethod
-    def kinematics(model, data) -> None:
-        """The scenes' kinematics, and the tendons' paths where there are tendons (MuJoCo
-        draws them)."""
-        Scene.kinematics(model, data)
-        if model.ntendon:
-            mujoco.mj_tendon(model, data)
+    kinematics = staticmethod(kinematics_with_tendons)
 
 
 # qpos / qvel components per joint type (mjtJoint: free, ball, slide, hinge)

@@ -128,6 +128,29 @@ def check_size(width, height, where: str = "event camera") -> None:
                              f"1..8192, got {v!r}")
 
 
+def prepare_render(model: mujoco.MjModel, width: int, height: int, msaa: bool = False,
+                   shadows: bool = False) -> None:
+    """Set a model's copy up for the camera, in place: the offscreen buffer at least
+    width x height, and (unless asked for) no MSAA and no shadow map (the project's
+    render-speed settings, sebvs.sim.scene.FAST_VISUAL)."""
+    g = model.vis.global_
+    g.offwidth, g.offheight = max(g.offwidth, width), max(g.offheight, height)
+    if not msaa:
+        model.vis.quality.offsamples = 0
+    if not shadows:
+        model.vis.quality.shadowsize = 0
+        if model.nlight:
+            model.light_castshadow[:] = 0
+
+
+def kinematics_with_tendons(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """The project scenes' kinematics (cameras and lights current), and the tendons' paths
+    where the model has tendons (MuJoCo draws them)."""
+    Scene.kinematics(model, data)
+    if model.ntendon:
+        mujoco.mj_tendon(model, data)
+
+
 class ModelScene:
     """One compiled model and camera at one image size, as sebvs.sensors.camera.CameraCore
     renders a scene (the Scene methods it calls; module docstring)."""
@@ -152,13 +175,7 @@ class ModelScene:
         """The camera's own copy of the model, with the render settings of the module
         docstring."""
         m = copy.deepcopy(self.source)
-        g = m.vis.global_
-        g.offwidth, g.offheight = max(g.offwidth, self.width), max(g.offheight, self.height)
-        if self.fast:
-            m.vis.quality.offsamples = 0
-            m.vis.quality.shadowsize = 0
-            if m.nlight:
-                m.light_castshadow[:] = 0
+        prepare_render(m, self.width, self.height, msaa=not self.fast, shadows=not self.fast)
         return m
 
     def image_shape(self) -> tuple[int, int]:
@@ -185,10 +202,4 @@ class ModelScene:
             data.mocap_pos[:] = state["mocap_pos"]
             data.mocap_quat[:] = state["mocap_quat"]
 
-    @staticmethod
-    def kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """The project scenes' kinematics (cameras and lights current), and the tendons'
-        paths where the model has tendons (MuJoCo draws them)."""
-        Scene.kinematics(model, data)
-        if model.ntendon:
-            mujoco.mj_tendon(model, data)
+    kinematics = staticmethod(kinematics_with_tendons)
