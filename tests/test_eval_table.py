@@ -132,7 +132,7 @@ def test_a_tag_compares_one_modality_under_two_settings(tmp_path, capsys):
         assert "a run is NAME=DIR or NAME@TAG=DIR, got 's0@=" in capsys.readouterr().err
         # the files a reader writes are its own: an existing one needs --force
         assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out)]) == 2
-        assert "t.json exists" in capsys.readouterr().err
+        assert "t.json: exists; give --force to replace it" in capsys.readouterr().err
         assert tool.main([*spec, "--a", "rgb@fr", "--b", "rgb", "--json", str(out),
                           "--force"]) == 0
         assert tool.tagged(rgb_only([True]), "")["episodes"][0]["modality"] == "rgb"

@@ -200,8 +200,8 @@ def _cmd_compare(args) -> int:
     try:
         comparison = compare(read_results(args.a), read_results(args.b),
                              args.modalities.split(",") if args.modalities else None)
-        _check_new(args.json, force=args.force)
-    except (ValueError, FileExistsError) as exc:
+        _check_new(args.json, inputs=(args.a, args.b), force=args.force)
+    except ValueError as exc:
         print(f"sebvs eval compare: {exc}", file=sys.stderr)
         return 2
     print(markdown(comparison, names), end="")
@@ -216,8 +216,9 @@ def _cmd_table(args) -> int:
     try:
         table = seed_table(load_runs(args.runs), args.a, args.b, args.metric,
                            args.min_diff, args.min_ahead)
-        _check_new(args.json, args.plot, force=args.force)
-    except (ValueError, FileExistsError) as exc:
+        _check_new(args.json, args.plot, force=args.force,
+                   inputs=[spec.partition("=")[2] for spec in args.runs])
+    except ValueError as exc:
         print(f"sebvs eval table: {exc}", file=sys.stderr)
         return 2
     print(markdown(table), end="")
@@ -229,12 +230,14 @@ def _cmd_table(args) -> int:
     return 0
 
 
-def _check_new(*paths: Path | None, force: bool = False) -> None:
-    """The files a reader writes are new, or it was told to replace them (--force)."""
+def _check_new(*paths: Path | None, inputs=(), force: bool = False) -> None:
+    """The files a reader writes are new, or it was told to replace them (--force), and
+    never one of the evaluations it reads (sebvs.output_guard.check_output_file)."""
+    from sebvs.output_guard import check_output_file
+    from .results import results_path
     for path in paths:
-        if path is not None and path.exists() and not force:
-            raise FileExistsError(f"{path} exists: give another path, or --force to "
-                                  f"replace it")
+        if path is not None:
+            check_output_file(path, inputs=[results_path(i) for i in inputs], force=force)
 
 
 def _write_json(path: Path, data: dict) -> None:

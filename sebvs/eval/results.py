@@ -20,6 +20,12 @@ METRICS = (("success", "paper rate"), ("strict_success", "strict rate"),
 TASK_METRICS = {"nav": METRICS, "arm": (("grasp_success", "grasp success"),)}
 
 
+def results_path(path: Path) -> Path:
+    """The results.json an `sebvs eval --out` directory (or the file itself) names."""
+    path = Path(path)
+    return path / "results.json" if path.is_dir() else path
+
+
 def read_results(path: Path) -> dict:
     """An evaluation's results.json, from the file or the directory holding it.
 
@@ -33,8 +39,7 @@ def read_results(path: Path) -> dict:
         ValueError: naming the path, where there is no such file, it is not JSON, or it
             holds no "episodes" list (not an `sebvs eval` results.json).
     """
-    path = Path(path)
-    path = path / "results.json" if path.is_dir() else path
+    path = results_path(path)
     try:
         results = json.loads(path.read_text())
     except FileNotFoundError:
