@@ -132,18 +132,17 @@ class Task:
 
     def condition(self, name: str) -> Condition:
         """The condition called `name`; ValueError (one line, the known ones listed)."""
-        found = self.conditions.get(name)
-        if found is None:
-            raise ValueError(f"unknown condition {name!r} for task {self.name} "
-                             f"(one of {', '.join(self.conditions)})")
-        return found
+        return self._named(self.conditions, "condition", name)
 
     def scenario(self, name: str) -> Scenario:
         """The scenario called `name`; ValueError (one line, the known ones listed)."""
-        found = self.scenarios.get(name)
+        return self._named(self.scenarios, "scenario", name)
+
+    def _named(self, table: dict, kind: str, name: str):
+        found = table.get(name)
         if found is None:
-            raise ValueError(f"unknown scenario {name!r} for task {self.name} "
-                             f"(one of {', '.join(self.scenarios)})")
+            raise ValueError(f"unknown {kind} {name!r} for task {self.name} "
+                             f"(one of {', '.join(table)})")
         return found
 
     def policy_sim(self) -> dict:
