@@ -3,7 +3,9 @@
 Input   events  {"events": EVENT_DTYPE [N]} from the emulator; meta control marks the
                 packet that ends at a control tick, event_sensor / frame give the geometry
 Output  frames  {"frame": [C, H, W]} at the RGB (frame) resolution for the window
-                [t - window_s, t]; uint8 counts (float32 for voxel); tick = the control tick;
+                [t - window_s, t]; uint8 counts (float32 for voxel; time_surface: uint8
+                [2, H, W] 255 exp(-age / window_s) of each pixel's newest event, any age);
+                tick = the control tick;
                 meta: representation, bins, window_s, event_scale / event_offset (sensor -> RGB)
 """
 from __future__ import annotations
@@ -23,8 +25,9 @@ class Accumulator(Actor):
 
     @dataclass
     class Params:
-        representation: Literal["counts", "histogram", "voxel"] = "counts"
-        window_s: Annotated[float, Range(gt=0, le=3600)] = 0.1   # one control period at 10 Hz
+        representation: Literal["counts", "histogram", "voxel", "time_surface"] = "counts"
+        # one control period at 10 Hz; for time_surface, window_s is the decay constant tau
+        window_s: Annotated[float, Range(gt=0, le=3600)] = 0.1
         bins: Annotated[int, Range(ge=1, le=256)] = 5
         clip: Annotated[int, Range(ge=1, le=255)] = 255      # counts are uint8
         out_width: OutSide = 0           # 0: the frame size the emulator reports

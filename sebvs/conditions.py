@@ -260,7 +260,7 @@ def checkpoint_event_frames(config: Mapping) -> dict | None:
     made), or None where it names none a topology can make."""
     frames = config.get("event_frames")
     if not isinstance(frames, dict) or frames.get("representation") not in (
-            "counts", "histogram"):
+            "counts", "histogram", "time_surface"):
         return None
     return frames
 

@@ -1,12 +1,17 @@
 """Event frames from an event stream: what a frame-based policy sees of the events.
 
-Representations, over the window [t - window, t] that ends at a control tick:
+Representations, the first three over the window [t - window, t] that ends at a control tick:
     counts     [2, H, W]          ON and OFF counts (the paper's event frames)
     histogram  [2 * bins, H, W]   counts per time bin, ON bins then OFF bins (RVT style)
     voxel      [bins, H, W]       polarity spread over time bins by linear interpolation
+    time_surface [2, H, W]        ON and OFF round(255 exp(-(t - t_last) / tau)), t_last the
+                                  pixel's newest event of that polarity this episode; for
+                                  time_surface, window_s is the decay constant tau and the
+                                  memory reaches beyond it (sebvs/dvs/time_surface.py)
 The frames are at the output (RGB) resolution: an event at emulator pixel (x, y) lands on
 (floor(x * scale + offset_x), floor(y * scale + offset_y)) and fills its scale x scale
-block, so a count keeps its meaning per sensor pixel. Counts saturate at `clip` (uint8).
+block, so a count keeps its meaning per sensor pixel. Counts saturate at `clip` (uint8);
+a time surface's 0..255 does not (clip does not apply to it).
 """
 from __future__ import annotations
 
@@ -16,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .emulator import EVENT_DTYPE
+from .time_surface import TimeSurface
 
-REPRESENTATIONS = ("counts", "histogram", "voxel")
+REPRESENTATIONS = ("counts", "histogram", "voxel", "time_surface")
 
 
 @dataclass(frozen=True)
@@ -47,7 +53,8 @@ def _concatenate(packets) -> np.ndarray:
 
 
 class EventAccumulator:
-    """Keeps the events of the last `window_s` and turns them into frames on demand."""
+    """Keeps the events of the last `window_s` and turns them into frames on demand
+    (time_surface: keeps each pixel's newest event time instead, `window_s` its tau)."""
 
     def __init__(self, geometry: EventGeometry, representation: str = "counts",
                  window_s: float = 0.1, bins: int = 5, clip: int = 255,
@@ -72,6 +79,9 @@ class EventAccumulator:
         self._running = (_RunningCounts(geometry.sensor)
                          if representation == "counts" and incremental else None)
         self.recounts = 0     # counts frames the running counts could not give (out of order)
+        # time_surface holds no packets: its per-pixel newest times outlive any window
+        self._surface = (TimeSurface(geometry.sensor, window_s)
+                         if representation == "time_surface" else None)
         # the output pixel -> sensor pixel maps (nearest), once per geometry
         (ow, oh), (sw, sh) = geometry.output, geometry.sensor
         self._rows = self._cols = None
@@ -83,11 +93,15 @@ class EventAccumulator:
         self._packets.clear()
         if self._running is not None:
             self._running.clear()
+        if self._surface is not None:
+            self._surface.clear()
 
     def add(self, events: np.ndarray) -> None:
         if events.dtype != EVENT_DTYPE:
             raise ValueError(f"events dtype {events.dtype} is not {EVENT_DTYPE}")
-        if events.size:
+        if self._surface is not None:
+            self._surface.add(events)
+        elif events.size:
             self._packets.append(events)
             if self._running is not None:
                 self._running.add(events)
@@ -112,6 +126,8 @@ class EventAccumulator:
     def frame(self, t_end_ns: int) -> np.ndarray:
         """The representation of the window ending at ``t_end_ns``, at the output resolution."""
         sw, sh = self.geometry.sensor
+        if self._surface is not None:
+            return self._to_output(self._surface.frame(t_end_ns))
         if self._running is not None:
             self._evict(t_end_ns - self.window_ns)
             counts = self._running.window(self._packets, t_end_ns - self.window_ns, t_end_ns,

@@ -95,5 +95,5 @@ class FrameStream:
         window."""
         acc = self.acc
         return {**acc.geometry.to_meta(), "representation": acc.representation,
-                "bins": 1 if acc.representation == "counts" else acc.bins,
+                "bins": 1 if acc.representation in ("counts", "time_surface") else acc.bins,
                 "window_s": self.window_s}

@@ -130,7 +130,7 @@ class ERPEnv(gymnasium.Env):
                    proprio, to observation.state), as `sebvs data export --format lerobot`
                    names them; "events" keeps its name
       bins         event frames as a voxel grid of this many time bins (float32)
-      representation  "counts" (default) | "histogram" | "voxel"
+      representation  "counts" (default) | "histogram" | "voxel" | "time_surface"
       privileged   info also carries the expert's inputs: "ideal" (the ideal 8-bit
                    render), "state" (the sim's state) and, arm, "depth"
       render_mode  None | "rgb_array" (render() returns the camera's RGB frame)
@@ -211,8 +211,9 @@ class ERPEnv(gymnasium.Env):
                 big = float(np.finfo(np.float32).max)     # signed sums of events: unbounded
                 spaces_["events"] = spaces.Box(-big, big, (ap.bins, fh, fw), np.float32)
             else:
-                planes = 2 if ap.representation == "counts" else 2 * ap.bins
-                spaces_["events"] = spaces.Box(0, ap.clip, (planes, fh, fw), np.uint8)
+                planes = 2 if ap.representation in ("counts", "time_surface") else 2 * ap.bins
+                high = 255 if ap.representation == "time_surface" else ap.clip  # not clipped
+                spaces_["events"] = spaces.Box(0, high, (planes, fh, fw), np.uint8)
         if "proprio" in obs:
             lo, hi = self._proprio_bounds()
             spaces_["proprio"] = spaces.Box(lo.astype(np.float32), hi.astype(np.float32),

@@ -28,8 +28,8 @@ Observation (a Dict; static spaces): the env's own observation under `state_key`
 keys of a Dict observation as they are), and
     events  the event frame of the step's window (the env's dt), at the image size:
             "counts" uint8 (2, H, W) ON then OFF counts clipped at `clip`;
-            "histogram" uint8 (2 * bins, H, W); "voxel" float32 (bins, H, W)
-            (sebvs.dvs.accumulator)
+            "histogram" uint8 (2 * bins, H, W); "voxel" float32 (bins, H, W);
+            "time_surface" uint8 (2, H, W), 0..255, tau the env's dt (sebvs.dvs.accumulator)
     rgb     the frame camera's image, uint8 (H, W, 3)
 and, with raw_events=True, info["raw_events"]: an EventPacket of the step's events
 (EVENT_DTYPE x, y, t ns, p +-1; an object, so vector envs can batch it).
@@ -191,8 +191,9 @@ class EventCameraWrapper(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArg
                 big = float(np.finfo(np.float32).max)    # signed sums: unbounded
                 parts["events"] = spaces.Box(-big, big, (bins, h, w), np.float32)
             else:
-                planes = 2 if representation == "counts" else 2 * bins
-                parts["events"] = spaces.Box(0, clip, (planes, h, w), np.uint8)
+                planes = 2 if representation in ("counts", "time_surface") else 2 * bins
+                high = 255 if representation == "time_surface" else clip   # not clipped
+                parts["events"] = spaces.Box(0, high, (planes, h, w), np.uint8)
         if "rgb" in self.obs_keys:
             parts["rgb"] = spaces.Box(0, 255, (h, w, 3), np.uint8)
         return spaces.Dict(parts)

@@ -119,10 +119,11 @@ def content_digest(root: str | Path, episodes: list[dict], modality: Modality | 
 
 def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
     """What a dataset's event frames are, from its first episode: {"representation":
-    "counts" | "histogram", "bins": K time bins per polarity, "window_s": the accumulator's
-    window, "sensor": the emulator's [w, h], "output": the frames' [w, h]} (window and
-    sensor None where the recording did not say). Training takes K from here, and the
-    checkpoint keeps the whole so that an evaluation can make its event frames the same way.
+    "counts" | "histogram" | "time_surface", "bins": K time bins per polarity (1 for a time
+    surface), "window_s": the accumulator's window (a time surface's tau), "sensor": the
+    emulator's [w, h], "output": the frames' [w, h]} (window and sensor None where the
+    recording did not say). Training takes K from here, and the checkpoint keeps the whole
+    so that an evaluation can make its event frames the same way.
     Voxel grids (signed, float) are refused: no model input is defined for them."""
     path = Path(root) / episodes[0]["file"]
     with open_episode(path) as ep:
@@ -134,14 +135,14 @@ def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
         window = ep.attrs.get("event_window_s")
         sensor = ep.attrs.get("event_sensor")
     if representation == "voxel":
-        raise ValueError(f"{path}: event frames are voxel grids; policies take 'counts' or "
-                         f"'histogram' frames (record with accumulator.representation="
-                         f"\"histogram\")")
-    if representation not in ("counts", "histogram") or planes % 2 or \
-            (representation == "counts" and planes != 2):
+        raise ValueError(f"{path}: event frames are voxel grids; policies take 'counts', "
+                         f"'histogram' or 'time_surface' frames (record with "
+                         f"accumulator.representation=\"histogram\")")
+    if representation not in ("counts", "histogram", "time_surface") or planes % 2 or \
+            (representation in ("counts", "time_surface") and planes != 2):
         raise ValueError(f"{path}: event frames of {planes} planes, representation "
-                         f"{representation!r}: expected counts [2, H, W] or a histogram "
-                         f"[2K, H, W]")
+                         f"{representation!r}: expected counts or a time surface [2, H, W], "
+                         f"or a histogram [2K, H, W]")
     return {"representation": representation, "bins": planes // 2,
             "window_s": float(window) if isinstance(window, (int, float)) else None,
             "sensor": [int(v) for v in sensor] if _is_size(sensor) else None,

@@ -265,6 +265,12 @@ def event_input(events: np.ndarray, norm: Normalisation, out: np.ndarray | None 
         what = ("[2, H, W] (ON, OFF counts)" if planes == 2 else
                 f"[{planes}, H, W] ({norm.event_bins} time bins per polarity)")
         raise ValueError(f"events must be {what}, got {list(events.shape)}")
+    if events.dtype.kind not in "ui":
+        # a voxel grid's signed floats would wrap in the uint8 lookup (-1.0 -> 255): its
+        # time bins would read as polarity counts
+        raise ValueError(f"event frames must be counts or a time surface (unsigned "
+                         f"integers), got {events.dtype}: a voxel grid cannot feed an ERP "
+                         f"policy (accumulator representation histogram or time_surface)")
     table = _event_table(norm.event_clip)
     out = _output(out, planes, norm.size)
     for c in range(planes):
@@ -283,6 +289,25 @@ def _event_table(clip: int) -> np.ndarray:
     if not 1 <= clip <= 255:
         raise ValueError(f"event_clip must be in 1..255, got {clip}")
     return (np.minimum(np.arange(256), clip) / clip).astype(np.float32)
+
+
+def event_clip_for(representation: str, requested: int) -> int:
+    """The Normalisation.event_clip a model of these event frames takes.
+
+    A time surface's uint8 is not a count: 0..255 is 255 exp(-age / tau), so it must reach
+    the model as value / 255. Clipped at a count's event_clip (8 by default), every pixel
+    that fired within about 3.5 tau would read 1.0 and the decay, the recency the surface
+    is for, would be lost. Counts and histograms keep the clip asked for.
+
+    Parameters:
+        representation: the frames' accumulator representation ("counts", "histogram",
+            "time_surface"; sebvs.dvs.accumulator.REPRESENTATIONS).
+        requested: the event_clip asked for (a setting or the default), 1..255.
+
+    Returns:
+        255 for "time_surface", ``requested`` otherwise.
+    """
+    return 255 if representation == "time_surface" else requested
 
 
 def diff_input(rgb: np.ndarray, rgb_prev: np.ndarray, norm: Normalisation,
