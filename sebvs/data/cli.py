@@ -179,7 +179,10 @@ def register(sub) -> None:
                                    "dataset. Shows episodes, frames and speed (simulated "
                                    "s per wall s). --workers / --ray play the episodes on "
                                    "several topology runs at once, with the same episode "
-                                   "files as one (docs/scale.md).")
+                                   "files as one (docs/scale.md). --hard-share F records "
+                                   "a chosen share of the episodes under hard conditions "
+                                   "(hdr, dusk, mains flicker) beside the randomised mix "
+                                   "(docs/data.md).")
     r.add_argument("topology", type=topology_argument,
                    help="topology TOML file with a recorder actor")
     r.add_argument("--episodes", type=int, required=True, metavar="N")
@@ -192,8 +195,9 @@ def register(sub) -> None:
                    help="record one named condition of the task (sebvs eval's, docs/sim.md) "
                         "instead of the topology's randomised mix")
     r.add_argument("--scenario", default=None, metavar="NAME",
-                   help="with --condition: the scene (nav indoor | outdoor, arm single | "
-                        "multi; default: the topology's)")
+                   help="with --condition or --hard-share: the scene of the named "
+                        "condition's episodes (nav indoor | outdoor, arm single | multi; "
+                        "default: the topology's)")
     r.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
                    help="override a parameter (value read as TOML; repeatable; after "
                         "--sensor and --condition)")
@@ -210,5 +214,25 @@ def register(sub) -> None:
                         "below N it lacks (the holes a stopped --workers run leaves, then "
                         "the tail), each the same episode it would have been, instead of "
                         "N more after its highest")
+    r.add_argument("--hard-share", default=None, metavar="F",
+                   help="make the dataset hold episodes 0..N-1 (as --fill), round(F*N) of "
+                        "them under hard conditions and the rest under the topology's "
+                        "randomised mix; F between 0 and 1, a decimal or a fraction (1/6). "
+                        "By episode number alone: the hard ones are spread evenly (any "
+                        "first n episodes hold round(F*n)) and take the conditions in "
+                        "turn, each recorded under the condition as --condition NAME sets "
+                        "it (with --scenario: in that scene) but drawing from the "
+                        "topology's randomised mix what the condition leaves open (nav hdr: "
+                        "the variant, target speed and blur), its name in the episode's "
+                        "condition attribute (\"randomised\" for the rest). The plan is "
+                        "kept in the dataset: a "
+                        "rerun records only the missing numbers, each under the condition "
+                        "the plan gives it, and a recording with another share, other "
+                        "conditions or none is refused (docs/data.md)")
+    r.add_argument("--hard-conditions", default=None, metavar="A,B,...",
+                   help="with --hard-share: the hard conditions, comma-separated, taken in "
+                        "turn (a name given twice gets twice the turns); default nav "
+                        "hdr,dusk_fast,flicker_120, arm hdr,dusk_moving,fast_hdr "
+                        "(sebvs/data/condition_mix.py says why)")
     add_fanout_arguments(r, "episodes")
     r.set_defaults(func=_record)

@@ -34,9 +34,26 @@ Filling (``--fill``): a stopped fan-out leaves holes, one at the end of each wor
 and numbering on from the highest would skip them. ``--fill --episodes N`` records exactly
 the numbers below N the dataset lacks, as shards over those ranges, so the dataset ends
 holding episodes 0..N-1, each episode k the one an unbroken run would have recorded.
+
+A share of hard conditions (``--hard-share F [--hard-conditions a,b,c]``, the assignment in
+sebvs/data/condition_mix.py): the dataset is to hold episodes 0..N-1 (as with --fill),
+round(F * N) of them, interleaved by number, each under one hard condition (taking turns),
+the rest under the randomised mix. A condition's overrides hold for a whole run, so each
+maximal run of consecutive numbers under one condition is a shard of its own, whose
+overrides are the condition's (those of ``--condition``) but for the randomised mix: a hard
+shard keeps the topology's ``randomise`` table less what the condition and ``--scenario``
+fix (condition_mix.mix_left), so its episodes still draw the scene variant, target speed
+or belt, blur, ... the condition leaves open, where ``--condition`` records one scene. The
+driver stamps each file's ``condition`` attribute (the condition's name, or "randomised")
+as it adopts it. The plan (share, conditions, scenario, and ``mix_kept``) is kept in
+index.json under "condition_mix": a rerun records the missing numbers, each under the
+condition the plan gives it, and a recording that asks for another plan (or none) is
+refused in one line while the dataset holds episodes, as is a dataset whose plan lacks
+``mix_kept`` (an earlier version's hard episodes, recorded without the mix).
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import importlib.util
 import json
@@ -50,7 +67,7 @@ from pathlib import Path
 
 RECORDER_CLASS = "actors.recorder:Recorder"
 STAGING = ".staging"        # <out>/.staging/<shard>/: where fan-out workers record
-SHARD_INFO = "shard.json"   # in each: {"base", "first", "stop"}
+SHARD_INFO = "shard.json"   # in each: {"base", "first", "stop"} (+ "condition": --hard-share)
 
 
 def find_recorder(topo) -> str:
@@ -114,7 +131,7 @@ def is_recording(path: Path) -> bool:
         for q in path.iterdir())
 
 
-def requested_overrides(args) -> list:
+def requested_overrides(args, keep_mix: bool = False) -> list:
     """What the user asked `sebvs record` to change, as override layers in order: the
     sensor pair (--sensor), the condition and scenario (--condition, --scenario: a named
     condition of sebvs/conditions.py in place of the topology's randomised mix), then the
@@ -123,6 +140,8 @@ def requested_overrides(args) -> list:
     Parameters:
         args: the parsed command line (callers building their own may leave out sensor,
             condition and scenario).
+        keep_mix: a hard shard's (hard_share_jobs): the condition keeps what the
+            randomised mix draws beyond it (condition_overrides).
 
     Returns:
         The layers. ValueError, in one line, for an unknown condition or scenario (the
@@ -138,51 +157,188 @@ def requested_overrides(args) -> list:
                          "draws its own scenes)")
     if condition:
         topo = load_topology(args.topology, [*given, *args.set])
-        given.append(condition_overrides(topo, condition, scenario, sensor))
+        given.append(condition_overrides(topo, condition, scenario, sensor, keep_mix))
     return [*given, *args.set]
 
 
 def condition_overrides(topo, condition: str, scenario: str | None = None,
-                        sensor: str | None = None) -> dict:
+                        sensor: str | None = None, keep_mix: bool = False) -> dict:
     """A recording topology made to record one named condition (and scenario) of its
-    task instead of its randomised mix.
+    task instead of its randomised mix (`--condition`: one condition, one scene), or, with
+    `keep_mix`, under it within the mix (a --hard-share shard).
 
     Parameters:
-        topo: the recording topology (its sim's scene names the task).
+        topo: the recording topology (its sim's scene names the task; its sim's
+            `randomise` the mix).
         condition: a condition of the task (sebvs/conditions.py).
         scenario: one of its scenarios; None: the topology's scene as written.
         sensor: the --sensor pair given beside it, which the condition must agree with.
+        keep_mix: False: no randomisation. True: the topology's randomise table less the
+            sim config keys these overrides set and the keys qualifying them
+            (condition_mix.mix_left: an hdr shard of nav_record still draws variant,
+            target_speed and rgb_blur, not lighting or flicker_hz).
 
     Returns:
-        The overrides: no randomisation, the condition's (its event sensor where the
-        topology has an emulator), the scenario's. ValueError, in one line, otherwise.
+        The overrides: the sim's randomise table (replaced whole), the condition's (its
+        event sensor where the topology has an emulator), the scenario's. ValueError, in
+        one line, otherwise.
     """
     from sebvs.conditions import task
-    from sebvs.runtime.overrides import merge, replace
+    from sebvs.runtime.overrides import lookup, merge, replace
+    from .condition_mix import mix_left
     sim = first_episode_actor(topo)
     spec = task(topo.actors[sim].params.get("scene", "nav"))
     chosen = spec.condition(condition)
     if sensor is not None and chosen.sensor != sensor:
         raise ValueError(f"condition {condition!r} is the {chosen.sensor} sensor pair's, "
                          f"not --sensor {sensor}'s")
-    layers = [{sim: {"randomise": replace({})}}, chosen.overrides()]
+    layers = [chosen.overrides()]
     if any(a.run.endswith(":Emulator") for a in topo.actors.values()):
         layers.append(chosen.event_sensor_overrides())
     if scenario is not None:
         layers.append(spec.scenario(scenario).overrides())
-    return merge(*layers)
+    sets = merge(*layers)
+    mix = mix_left(topo.actors[sim].params.get("randomise") or {},
+                   lookup(sets, sim, "config", default={})) if keep_mix else {}
+    return merge({sim: {"randomise": replace(mix)}}, sets)
+
+
+def _camera_sensor(topo) -> str | None:
+    """The sensor pair the topology's camera records through (its `sensor` parameter, or
+    the parameter's default), None without a camera."""
+    for actor in topo.actors.values():
+        if actor.run.endswith(":Camera") and not actor.pruned:
+            fields = {f.name: f for f in dataclasses.fields(actor.cls.Params)} \
+                if dataclasses.is_dataclass(getattr(actor.cls, "Params", None)) else {}
+            default = fields["sensor"].default if "sensor" in fields else None
+            return actor.params.get("sensor", default)
+    return None
+
+
+def hard_share_mix(args, topo):
+    """The share of hard conditions `args` asks for (--hard-share, --hard-conditions,
+    --scenario), or None.
+
+    Parameters:
+        args: the parsed command line.
+        topo: the recording topology with the run's overrides (its sim's scene names the
+            task, whose default hard conditions apply without --hard-conditions).
+
+    Returns:
+        A ConditionMix, or None without --hard-share. ValueError, in one line, for a share
+        out of range, an unknown condition or scenario, a condition of another sensor pair
+        than the topology's camera records, or --hard-conditions without --hard-share.
+    """
+    from sebvs.conditions import task
+    from .condition_mix import (ConditionMix, default_conditions, parse_conditions,
+                                parse_share)
+    share, names = getattr(args, "hard_share", None), getattr(args, "hard_conditions", None)
+    if share is None:
+        if names is not None:
+            raise ValueError("--hard-conditions needs --hard-share (the share of episodes "
+                             "recorded under them)")
+        return None
+    spec = task(topo.actors[first_episode_actor(topo)].params.get("scene", "nav"))
+    conditions = parse_conditions(names) if names is not None else default_conditions(
+        spec.name)
+    scenario = getattr(args, "scenario", None)
+    if scenario is not None:
+        spec.scenario(scenario)
+    sensor = _camera_sensor(topo)
+    flag = "--hard-conditions" if names is not None else \
+        f"--hard-share (the {spec.name} task's default hard conditions)"
+    for name in conditions:
+        try:
+            chosen = spec.condition(name)
+        except ValueError as exc:
+            raise ValueError(f"{flag}: {exc}") from None
+        if sensor is not None and chosen.sensor != sensor:
+            raise ValueError(f"{flag}: {name!r} is the {chosen.sensor} sensor "
+                             f"pair's, and the topology's camera records {sensor} (give "
+                             f"--sensor {chosen.sensor}, or the {sensor} pair's conditions: "
+                             f"{', '.join(spec.names(sensor))})")
+    return ConditionMix(parse_share(share), conditions, scenario)
+
+
+def recorder_overrides(args, recorder: str, out: Path, given: list) -> list:
+    """`given` and, last, the recorder's own settings for a run of `sebvs record`: it
+    applies `given` to the file it stores, so the episodes say what ran."""
+    return [*given, {recorder: {"out": str(out), "episodes": args.episodes,
+                                "topology": str(Path(args.topology).resolve()),
+                                "overrides": list(given)}}]
+
+
+def hard_share_jobs(args, recorder: str, out: Path, given: list, mix) -> dict:
+    """Each condition's overrides for a --hard-share recording, as one mapping per job.
+
+    Parameters:
+        args: the parsed command line (topology, sensor, set, episodes).
+        recorder: the recorder actor's name.
+        out: the dataset.
+        given: the run's own override layers (requested_overrides without a condition).
+        mix: the ConditionMix.
+
+    Returns:
+        {condition name: overrides}: RANDOMISED's are the run's own (`given`), each hard
+        condition's those of `--condition NAME --scenario S` with the same --sensor and
+        --set lines, except that the sim keeps the randomised mix less what the condition
+        and scenario fix (condition_overrides with keep_mix). ValueError, in one line,
+        where a --set line puts a fixed key back into the mix (it would draw over the
+        condition).
+    """
+    from sebvs.runtime.overrides import as_mapping, lookup
+    from sebvs.runtime.topology import load_topology
+    from .condition_mix import RANDOMISED
+    jobs = {RANDOMISED: as_mapping(recorder_overrides(args, recorder, out, given))}
+    sim = first_episode_actor(load_topology(args.topology, given))
+    for name in dict.fromkeys(mix.conditions):
+        one = argparse.Namespace(**{**vars(args), "condition": name,
+                                    "scenario": mix.scenario})
+        layers = requested_overrides(one, keep_mix=True)
+        jobs[name] = as_mapping(recorder_overrides(args, recorder, out, layers))
+        # the condition's layer holds the mix it leaves; the --set lines come after it
+        condition_layer = layers[len(layers) - len(args.set) - 1]
+        left = lookup(condition_layer, sim, "randomise", default={})
+        drawn = lookup(jobs[name], sim, "randomise", default={}) or {}
+        over = sorted(set(drawn) - set(left))
+        if over:
+            raise ValueError(f"--set puts {', '.join(over)} into {sim}.randomise, which hard "
+                             f"condition {name!r} fixes; give the randomised episodes' mix in "
+                             f"a copy of the topology file instead")
+    return jobs
+
+
+def dataset_plan(out: Path) -> tuple[dict | None, int]:
+    """A dataset's stored condition-mix plan (None: none) and how many episodes it holds
+    (indexed, or files on disk, .partial ones included)."""
+    from .condition_mix import PLAN_KEY
+    from .index import EPISODE_RE, DatasetIndex
+    if not out.is_dir():
+        return None, 0
+    index = DatasetIndex(out)
+    numbers = index.numbers() | {int(m.group(1)) for p in out.iterdir()
+                                 if (m := EPISODE_RE.match(p.name))}
+    return index.data.get(PLAN_KEY), len(numbers)
 
 
 def cmd_record(args) -> int:
     from sebvs.runtime.overrides import as_mapping
     from sebvs.runtime.supervisor import RunFailed, Supervisor
     from sebvs.runtime.topology import load_topology
+    from .condition_mix import check_dataset_plan
     from .index import DatasetIndex
     from .splits import check_recording_seed
     from sebvs.output_guard import OutputRefused, check_output_dir
 
+    hard = getattr(args, "hard_share", None) is not None or \
+        getattr(args, "hard_conditions", None) is not None
     try:
-        given = requested_overrides(args)
+        if hard and getattr(args, "condition", None) is not None:
+            raise ValueError("--hard-share and --condition: a hard share records its own "
+                             "conditions beside the randomised mix; give one of them")
+        # with --hard-share, --scenario is the hard episodes' (hard_share_jobs), not the run's
+        given = requested_overrides(argparse.Namespace(**{**vars(args), "scenario": None})
+                                    if hard else args)
     except (ValueError, LookupError) as exc:
         print(f"sebvs record: {exc}", file=sys.stderr)
         return 2
@@ -194,12 +350,14 @@ def cmd_record(args) -> int:
     except OutputRefused as exc:
         print(f"sebvs record: {exc}", file=sys.stderr)
         return 2
-    # the recorder's own settings; it applies `given` to the file it stores, so the
-    # episodes say what ran
-    overrides = [*given, {name: {"out": str(out), "episodes": args.episodes,
-                                 "topology": str(Path(args.topology).resolve()),
-                                 "overrides": list(given)}}]
+    overrides = recorder_overrides(args, name, out, given)
     topo = load_topology(args.topology, overrides)
+    try:
+        mix = hard_share_mix(args, topo)
+        jobs = hard_share_jobs(args, name, out, given, mix) if mix is not None else None
+    except (ValueError, LookupError) as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
     # refused outright, with no flag to allow it: a test split that one flag can record from
     # is held out only by convention, and nothing a recording needs lies in that range
     try:
@@ -220,12 +378,22 @@ def cmd_record(args) -> int:
     for adopted in adopt_staged(out):
         print(f"sebvs record: adopted {adopted}, finished by a worker of an earlier run",
               file=sys.stderr)
-    if (args.workers or 1) > 1 or args.ray is not None or args.fill:
+    try:
+        # after the adoption: what a dead driver's workers finished was recorded under
+        # the dataset's plan, whatever this command asks
+        stored, held = dataset_plan(out)
+        check_dataset_plan(stored, mix, episodes=held, where=str(out))
+    except ValueError as exc:
+        print(f"sebvs record: {exc}", file=sys.stderr)
+        return 2
+    if (args.workers or 1) > 1 or args.ray is not None or args.fill or mix is not None:
         # a fill plays ranges of numbers, not one run on from the highest: the fan-out's
-        # shards, on one worker when no more are asked for
+        # shards, on one worker when no more are asked for; so does a hard share, whose
+        # conditions are runs of their own
         if args.workers is None and args.ray is None:
             args.workers = 1
-        return record_fanout(args, topo, name, out, as_mapping(overrides))
+        return record_fanout(args, topo, name, out, as_mapping(overrides), mix=mix,
+                             jobs=jobs)
     first = DatasetIndex(out).next_episode_number() if out.exists() else 0
     try:
         # the dataset's episode N is episode N of the seed: a recording into a dataset
@@ -323,7 +491,9 @@ def adopt_stage(stage: Path, index, have: set[int] | None = None) -> list[int]:
     directory's shard.json) and is indexed after the rename, so a crash between the two
     leaves a whole, unindexed file that ``adopt_unindexed`` picks up. Files for episodes
     outside the shard's range, or for a number the dataset already has (a retried
-    range), are deleted. Returns the episode indices k adopted.
+    range), are deleted. A shard of a hard share (shard.json's "condition") has its name
+    stamped into each file's ``condition`` attribute before the rename. Returns the
+    episode indices k adopted.
     """
     from .index import EPISODE_RE, episode_name, make_entry
     info_path = stage / SHARD_INFO
@@ -344,11 +514,30 @@ def adopt_stage(stage: Path, index, have: set[int] | None = None) -> list[int]:
         if not info["first"] <= k < info["stop"] or number in have or dest.exists():
             p.unlink()
             continue
+        if info.get("condition") is not None:
+            try:
+                stamp_condition(p, info["condition"])
+            except OSError:     # left in the stage (removed with it): recorded again
+                continue
         os.replace(p, dest)
         index.insert(make_entry(dest))
         have.add(number)
         adopted.append(k)
     return adopted
+
+
+def stamp_condition(path: Path, condition: str) -> None:
+    """Set an episode file's ``condition`` attribute (the named condition it was recorded
+    under, or "randomised") and fsync it; before it is indexed, so its hash is the final
+    one."""
+    import h5py
+    with h5py.File(path, "r+") as f:
+        f.attrs["condition"] = condition
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def adopt_staged(out: Path) -> list[str]:
@@ -377,7 +566,8 @@ def _remove_if_empty(path: Path) -> None:
         pass
 
 
-def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
+def record_fanout(args, topo, recorder: str, out: Path, overrides: dict, mix=None,
+                  jobs: dict | None = None) -> int:
     """`sebvs record` over workers: see the module docstring.
 
     Parameters:
@@ -386,6 +576,10 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
         recorder: the recorder actor's name.
         out: the dataset.
         overrides: everything a worker's run gets before its shard's own settings.
+        mix: the --hard-share plan (sebvs/data/condition_mix.py), None without; stored in
+            the dataset's index before anything is recorded.
+        jobs: with `mix`, each condition's overrides in place of `overrides`
+            (hard_share_jobs).
 
     Returns:
         The exit status.
@@ -393,7 +587,8 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
     from tqdm import tqdm
 
     from sebvs.scale import RayMissing, ShardsLost, fan_out
-    from .index import DatasetIndex
+    from .condition_mix import PLAN_KEY
+    from .index import DatasetIndex, write_json_atomic
 
     try:
         sim = first_episode_actor(topo)
@@ -403,22 +598,33 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
     out = out.resolve()
     index = DatasetIndex(out)
     index.adopt_unindexed()
-    planned = plan_shards(args, index)
+    if mix is not None and index.data.get(PLAN_KEY) != mix.to_json():
+        # before the first episode: a run stopped at any point leaves the plan its
+        # episodes were recorded under
+        out.mkdir(parents=True, exist_ok=True)
+        index.data[PLAN_KEY] = mix.to_json()
+        write_json_atomic(index.path, index.data)
+    planned = plan_shards(args, index, mix)
     if planned is None:
         print(f"sebvs record: {out} already holds episodes 0-{args.episodes - 1}; "
               f"nothing to fill", file=sys.stderr)
         return 0
     wanted, shards = planned
+    if mix is not None:
+        print(f"sebvs record: hard share {mix.share} of episodes 0-{args.episodes - 1}: "
+              + ", ".join(f"{c} {n}" for c, n in mix.counts(args.episodes).items()),
+              file=sys.stderr)
     bar = tqdm(total=len(wanted), unit="ep", desc="recording", disable=args.quiet,
                dynamic_ncols=True)
     staging = StagedShards(
         index, topology=str(Path(args.topology).resolve()), overrides=overrides,
         recorder=recorder, sim=sim, timeout_s=args.timeout, bar=bar,
-        runs_dir=str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve()))
+        runs_dir=str(Path(args.runs_dir or os.environ.get("SEBVS_RUNS_DIR", "runs")).resolve()),
+        jobs=jobs)
     where = f"Ray ({args.ray or 'local'})" if args.ray is not None else \
         f"{args.workers} local workers"
     first = (f"filling {len(wanted)} missing episode(s) of 0-{args.episodes - 1}"
-             if args.fill else f"first episode {wanted[0]:04d}")
+             if args.fill or mix is not None else f"first episode {wanted[0]:04d}")
     print(f"sebvs record: {topo.name} -> {out} ({first}), {len(shards)} "
           f"shard(s) on {where}", file=sys.stderr)
     t0 = time.monotonic()
@@ -442,23 +648,28 @@ def record_fanout(args, topo, recorder: str, out: Path, overrides: dict) -> int:
     return code if code else (0 if recorded >= len(wanted) else 1)
 
 
-def plan_shards(args, index) -> tuple[list[int], list] | None:
+def plan_shards(args, index, mix=None) -> tuple[list[int], list] | None:
     """The episode numbers a fan-out records and its shards, or None when a fill finds
     nothing missing.
 
     Without --fill: episodes [base, base + N) of the seed (base: the dataset's next
     number), as one process plays them, split over the workers. With --fill: the numbers
     below N the dataset lacks, as contiguous ranges, each split over the workers in
-    proportion to its length.
+    proportion to its length. With a hard share (`mix`): as with --fill, the ranges being
+    the runs of consecutive missing numbers under one condition, each shard's job that
+    condition's name (condition_mix.RANDOMISED for the randomised mix).
     """
     from sebvs.scale import Shard, split_episodes
+    from .condition_mix import condition_runs
     parts = args.workers if args.workers else (os.cpu_count() or 1)
-    if args.fill:
+    if args.fill or mix is not None:
         have = index.numbers()
         wanted = [k for k in range(args.episodes) if k not in have]
         if not wanted:
             return None
-        return wanted, [Shard("recording", a, b) for lo, hi in contiguous_ranges(wanted)
+        runs = condition_runs(mix.assign(wanted)) if mix is not None else \
+            [("recording", lo, hi) for lo, hi in contiguous_ranges(wanted)]
+        return wanted, [Shard(job, a, b) for job, lo, hi in runs
                         for a, b in split_episodes(lo, hi, max(1, round(parts * (hi - lo)
                                                                         / len(wanted))))]
     base = index.next_episode_number()
@@ -473,8 +684,12 @@ class StagedShards:
     the dataset, as soon as it appears."""
 
     def __init__(self, index, *, topology: str, overrides: dict, recorder: str, sim: str,
-                 runs_dir: str, timeout_s: float | None, bar) -> None:
-        self.index, self.topology, self.overrides = index, topology, overrides
+                 runs_dir: str, timeout_s: float | None, bar, jobs: dict | None = None
+                 ) -> None:
+        # jobs (a hard share): each shard's job is a condition name, whose overrides
+        # replace `overrides` and whose name each of its files is stamped with
+        self.index, self.topology, self.overrides, self.jobs = index, topology, overrides, \
+            jobs
         self.recorder, self.sim, self.runs_dir, self.timeout_s = recorder, sim, runs_dir, \
             timeout_s
         self.bar = bar
@@ -495,8 +710,10 @@ class StagedShards:
         # shards cover [base, base + n) of the seed's episodes, so episode k is the
         # dataset's number k (base 0 here; a shard.json of an older driver may say
         # another base, which adopt_stage adds)
-        (stage / SHARD_INFO).write_text(json.dumps(
-            {"base": 0, "first": shard.first, "stop": shard.stop}))
+        info = {"base": 0, "first": shard.first, "stop": shard.stop}
+        if self.jobs is not None:
+            info["condition"] = shard.job
+        (stage / SHARD_INFO).write_text(json.dumps(info))
         if index.task is not None:
             # the worker's recorder then refuses a stream of another task, as it would in
             # the dataset itself
@@ -506,7 +723,8 @@ class StagedShards:
         size = shard.stop - shard.first
         shard_sets = {self.recorder: {"out": str(stage), "episodes": size},
                       self.sim: {"first_episode": shard.first, "episodes": size}}
-        return Task(str(shard), self.topology, merge(self.overrides, shard_sets),
+        overrides = self.overrides if self.jobs is None else self.jobs[shard.job]
+        return Task(str(shard), self.topology, merge(overrides, shard_sets),
                     self.runs_dir, timeout_s=self.timeout_s)
 
     def adopt(self, shard) -> None:

@@ -3,9 +3,11 @@
 Nav: control-vector scatter (v against w), mean forward speed per episode, accumulated
 events per episode. Arm: end-effector workspace (x-y and x-z scatter of the pre-grasp
 poses), accumulated events per episode. Printed: episodes, frames, minutes of simulation,
-labelled commands (frames whose target is finite), and the coverage: for every scene config
-key that varies across episodes (a randomised recording, or batches recorded apart), the
-episodes and frames per value (a float key: its range).
+labelled commands (frames whose target is finite), the share of episodes per named
+condition where episodes name theirs (the ``condition`` attribute of a ``sebvs record
+--hard-share`` recording), and the coverage: for every scene config key that varies across
+episodes (a randomised recording, or batches recorded apart), the episodes and frames per
+value (a float key: its range).
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ class EpisodeStats:
     mean_abs_v: float = float("nan")    # nav: mean |v| command (speed, either direction)
     robot_speed: float = float("nan")   # mean measured base speed, m/s (nav, from truth/robot)
     conditions: dict = field(default_factory=dict)  # the scene config the episode played
+    condition: str | None = None    # the named condition it was recorded under, if it says
 
 
 @dataclass
@@ -55,6 +58,18 @@ class DatasetStats:
     @property
     def labelled(self) -> int:
         return sum(e.labelled for e in self.episodes)
+
+    def condition_shares(self) -> dict[str, int]:
+        """Episodes per named condition (the ``condition`` attribute): the hard ones in the
+        order they first appear, then "randomised", then "unnamed" for episodes without
+        the attribute; empty when no episode names one."""
+        names = [e.condition or "unnamed" for e in self.episodes]
+        if set(names) <= {"unnamed"}:
+            return {}
+        last = ("randomised", "unnamed")
+        order = [*dict.fromkeys(n for n in names if n not in last),
+                 *(n for n in last if n in names)]
+        return {n: names.count(n) for n in order}
 
     def coverage(self) -> dict[str, dict]:
         """key -> {value: (episodes, frames)} for the config keys that vary; a float key with
@@ -96,6 +111,10 @@ class DatasetStats:
                              f"w mean {w.mean():+.3f} sd {w.std():.3f}")
         for line in self.damaged:
             lines.append(f"  damaged, left out: {line}")
+        shares = self.condition_shares()
+        if shares:
+            lines.append("  conditions         " + ", ".join(
+                f"{c} {n} ({100 * n / len(self.episodes):.0f} %)" for c, n in shares.items()))
         cover = self.coverage()
         if cover:
             lines.append("  coverage (episodes / frames per scene setting)")
@@ -164,7 +183,8 @@ def _episode_stats(path: Path) -> tuple[str, EpisodeStats, np.ndarray]:
         st = EpisodeStats(path.name, len(ep), sim_s, int(finite.sum()), events,
                           y[finite].mean(axis=0) if finite.any()
                           else np.full(y.shape[1], np.nan),
-                          conditions=dict(ep.attrs.get("conditions") or {}))
+                          conditions=dict(ep.attrs.get("conditions") or {}),
+                          condition=str(ep.attrs.get("condition") or "") or None)
         if ep.task == "nav" and finite.any():
             st.mean_abs_v = float(np.abs(y[finite, 0]).mean())
         if "robot" in ep.truth and len(t) > 1:
