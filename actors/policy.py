@@ -14,6 +14,12 @@ Output  action  arrays {"action": float32 [2]} (nav [v, w]) or {"pose": float32 
 Every listed checkpoint is loaded in setup; `sebvs ctl RUN policy set modality=event`
 swaps between them at the next tick. A modality without a checkpoint, or whose inputs
 the topology does not wire, is refused and the current one stays.
+
+A checkpoint with memory (config memory "gru") carries its state from tick to tick. The
+state starts afresh at every episode's first tick (the frames' meta episode changes: the
+sim's episode end is followed by the next episode's frames) and at a modality swap (the
+state of one modality's model means nothing to another's, nor to its own after ticks it
+did not see); stats "state_resets" counts both.
 """
 from __future__ import annotations
 
@@ -85,6 +91,11 @@ class Policy(Actor):
         self.event_frame_mismatch: dict[str, int] = {}
         self.swaps: list[dict] = []
         self.inference_ms: list[float] = []
+        # the episode of each buffered tick (from its frames' meta), and the episode the
+        # active recurrent state belongs to
+        self.tick_episode: dict[int, object] = {}
+        self.state_episode = None
+        self.state_resets = {"episode": 0, "swap": 0}
         graphs = sorted({lp.graph for lp in self.policies.policies.values()})
         self.log.info("loaded %s (%s, %s graph); active %s; inputs wired: %s",
                       ", ".join(self.policies.modalities), self.policies.task,
@@ -148,6 +159,8 @@ class Policy(Actor):
             raise ValueError(f"{stream} message from {msg.source} has no tick")
         if msg.meta.get("control") is False:
             return      # a sample between control ticks (camera rgb_hz > control rate)
+        if "episode" in msg.meta:
+            self.tick_episode[msg.tick] = msg.meta["episode"]
         self.sync.put(stream, msg.tick, array, msg.t_sim)
         await self._step(msg)
 
@@ -159,6 +172,7 @@ class Policy(Actor):
             if last is not None and tick > last + 1:
                 self.skipped_ticks += tick - last - 1
             frames = self.sync.take(modality, tick)
+            self._follow_episode(tick)
             y, prep_ms, inf_ms = self.policies.act(
                 modality, **{s: a for s, (a, _) in frames.items()})
             t_sim = next(iter(frames.values()))[1]
@@ -177,6 +191,18 @@ class Policy(Actor):
             self.telemetry("inference", ms=inf_ms, preprocess_ms=prep_ms, tick=tick,
                            modality=modality)
 
+    def _follow_episode(self, tick: int) -> None:
+        """Start the recurrent states afresh where ``tick`` begins another episode than
+        the one they remember; forget the episodes of ticks up to ``tick``."""
+        episode = self.tick_episode.get(tick, self.state_episode)
+        for t in [t for t in self.tick_episode if t <= tick]:
+            del self.tick_episode[t]
+        if episode != self.state_episode:
+            if self.policies.recurrent:
+                self.policies.reset()
+                self.state_resets["episode"] += 1
+            self.state_episode = episode
+
     # ------------------------------------------------------------------ control
     async def control(self, key: str, value) -> dict:
         if key == "modality":
@@ -188,6 +214,10 @@ class Policy(Actor):
             effective = 0 if last is None else last + 1
             self.params.modality = value
             swap = {"from": old, "to": value, "effective_tick": effective}
+            if value in self.policies.recurrent:
+                self.policies.reset(value)
+                self.state_resets["swap"] += 1
+                swap["state_reset"] = True
             self.swaps.append(swap)
             self.telemetry("modality_swap", **swap)
             self.log.info("modality %s -> %s from tick %d", old, value, effective)
@@ -204,6 +234,8 @@ class Policy(Actor):
     def stats(self) -> dict:
         return {"modality": self.params.modality, "loaded": self.policies.modalities,
                 "graphs": {m: lp.graph for m, lp in self.policies.policies.items()},
+                "memory": {m: lp.model.memory for m, lp in self.policies.policies.items()},
+                "state_resets": self.state_resets,
                 "emitted": self.emitted, "last_tick": self.sync.last_tick,
                 "skipped_ticks": self.skipped_ticks, "swaps": self.swaps,
                 "event_frame_mismatch": self.event_frame_mismatch,

@@ -17,6 +17,8 @@ Inputs (connect what the topology has; `events` may be absent in RGB-only topolo
            ["action"] (nu,) (mjcf: a policy's, or the sim's scripted command);
            meta modality (where a policy drove)
   episode  sim: meta {event: "start"|"end", episode, seed, reason, scene, config}
+  drive    (LockstepRecorder only, optional) policy: arrays as `action`, meta modality: the
+           command that should drive the sim, while `action` stays the recorded label
 raw_events = true with no `raw` input wired is refused when the topology loads, in one line
 naming the input to wire (nothing else would record raw events: the accumulator sends
 frames only).
@@ -25,6 +27,14 @@ once that tick's row is complete. Wire the sim's action to it in lockstep and th
 for the whole recorded chain (emulator and accumulator included), not only for the expert:
 otherwise nothing paces the sim to the event chain, which falls behind and drops luma
 frames. (A plain Recorder has no output, so the topology loader never prunes the tap.)
+With `drive` wired (DAgger, topologies/nav_dagger.toml: drive = "policy/action"), a tick's
+row waits for the drive command too, and the action passed on is that command: the policy
+drives, the expert labels. The file's `action` (or `pose`) is the expert's label; the
+dataset `drive` [T, D] holds the command that drove each tick, `modality` the driving
+policy's input. A LockstepRecorder whose output is consumed names the driver in the
+episode's attribute `driver`: the driving message's source actor and its modality
+("policy:rgb"), or the label's source ("expert") without `drive`. `drive` without `action`
+is refused when the topology loads, in one line (there would be no label to record).
 One row per control tick once every connected stream delivered that tick (see
 sebvs.data.recording.TickJoiner); an episode file per sim episode, finished on its end
 marker, then indexed (sebvs.data.index). After `episodes` finished episodes the recorder
@@ -53,7 +63,7 @@ from sebvs.data.recording import (WRITE_STOPPED, EpisodeRecorder, SpaceReserve, 
 from sebvs.runtime import Actor, Message, Range
 from sebvs.runtime.topology import TopologyError, apply_overrides
 
-STREAMS = ("rgb", "events", "raw", "proprio", "action")
+STREAMS = ("rgb", "events", "raw", "proprio", "action", "drive")
 # file attribute <- accumulator meta key (either spelling)
 EVENT_ATTRS = {"event_scale": "scale", "event_offset": "offset", "emulator": "params",
                "event_sensor": "sensor", "event_output": "output",
@@ -181,10 +191,19 @@ class Recorder(Actor):
             return
         tick, row = done
         act = row["action"]
+        # what drives the sim: the drive command where one is wired, else the label
+        passed = row.get("drive", act)
+        if passed["key"] != act["key"]:
+            raise ValueError(f"{self.name}: the drive command is {passed['key']!r}, the "
+                             f"label {act['key']!r}: the policy and the expert are of "
+                             f"different tasks")
+        driver = None
         if "action" in self.consumed:
             # first, so the sim steps on while this row is written
-            await self.emit("action", {act["key"]: act["value"]}, parent=msg, tick=tick,
-                            t_sim=act["t_sim"], meta=act["meta"])
+            await self.emit("action", {passed["key"]: passed["value"]}, parent=msg,
+                            tick=tick, t_sim=passed["t_sim"], meta=passed["meta"])
+            driver = passed["source"] + (f":{passed['modality']}"
+                                         if passed.get("modality") else "")
         latency = {}
         for s in STREAMS:
             if s in row:
@@ -193,15 +212,19 @@ class Recorder(Actor):
         fields = {"rgb": rgb["rgb"], "t_sim": rgb["t_sim"] if rgb["t_sim"] is not None
                   else (row["action"]["t_sim"] or 0.0),
                   "latency": latency, "truth": rgb.get("truth"),
-                  "modality": row["action"].get("modality"),
+                  "modality": passed.get("modality"),
                   "episode": rgb.get("episode"),
                   row["action"]["key"]: row["action"]["value"]}
+        if "drive" in row:
+            fields["drive"] = row["drive"]["value"]
+        if driver is not None:
+            fields["attrs"] = {"driver": driver}
         if "events" in row:
             fields["event_frame"] = row["events"]["frame"]
             if row["events"].get("raw") is not None:
                 fields["raw_events"] = row["events"]["raw"]
             if row["events"]["attrs"]:
-                fields["attrs"] = row["events"]["attrs"]
+                fields["attrs"] = {**fields.get("attrs", {}), **row["events"]["attrs"]}
         if "raw" in row:
             fields["raw_events"] = row["raw"]["raw"]
         if "proprio" in row:
@@ -255,14 +278,17 @@ class Recorder(Actor):
             "names": [str(n) for n in names] if isinstance(names, (list, tuple)) else None})
 
     async def on_action(self, msg: Message) -> None:
+        await self._take_command("action", msg)
+
+    async def _take_command(self, stream: str, msg: Message) -> None:
         key = "action" if "action" in msg.arrays else "pose"
         if key not in msg.arrays:
-            self.log.warning("action message without 'action' or 'pose' array; skipped")
+            self.log.warning("%s message without 'action' or 'pose' array; skipped", stream)
             return
-        await self._take("action", msg, {"key": key,
-                                         "value": np.array(msg.arrays[key], np.float32),
-                                         "modality": msg.meta.get("modality"),
-                                         "meta": msg.meta})
+        await self._take(stream, msg, {"key": key,
+                                       "value": np.array(msg.arrays[key], np.float32),
+                                       "modality": msg.meta.get("modality"),
+                                       "meta": msg.meta, "source": msg.source})
 
     async def on_episode(self, msg: Message) -> None:
         m = msg.meta
@@ -347,5 +373,33 @@ class Recorder(Actor):
 
 
 class LockstepRecorder(Recorder):
-    """A Recorder that passes each recorded tick's action on (wire the sim's action here)."""
+    """A Recorder that passes each recorded tick's action on (wire the sim's action here):
+    the label's, or with `drive` wired the drive command's (module docstring)."""
+    inputs = (*Recorder.inputs, "drive")
     outputs = ("action",)
+
+    @classmethod
+    def check_wiring(cls, params: "Recorder.Params", connected: frozenset) -> str | None:
+        """Recorder.check_wiring, and `drive` refused without `action`.
+
+        Parameters:
+            params: the recorder's parameters as the topology sets them.
+            connected: the names of its wired inputs.
+
+        Returns:
+            One line naming the missing input and how to wire it, or None.
+        """
+        if "drive" in connected and "action" not in connected:
+            return ("the input 'drive' is wired but 'action' is not: the drive command "
+                    "would drive the sim with no label to record; wire 'action' to the "
+                    "expert, e.g. inputs.action = \"expert/action\"")
+        return super().check_wiring(params, connected)
+
+    async def setup(self) -> None:
+        await super().setup()
+        if "drive" in self.connected and "action" not in self.consumed:
+            self.log.warning("'drive' is wired but nothing consumes this recorder's "
+                             "action: the drive commands are recorded, they drive nothing")
+
+    async def on_drive(self, msg: Message) -> None:
+        await self._take_command("drive", msg)

@@ -20,10 +20,14 @@ from sebvs.data.episode import EpisodeWriter
 from sebvs.data.index import DatasetIndex, make_entry
 
 
-def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, vary_gain: bool):
-    """-> rgb [T, H, W, 3], events [T, 2, H, W], centre [T, 2] in [0, 1], gain [T] in [0.2, 1]."""
+def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, vary_gain: bool,
+            shown: int = 0):
+    """-> rgb [T, H, W, 3], events [T, 2, H, W], centre [T, 2] in [0, 1], gain [T] in [0.2, 1].
+    ``shown`` > 0: the square stands still and shows in the first ``shown`` frames only."""
     x, y = rng.uniform(0, w - side), rng.uniform(0, h - side)
     vx, vy = rng.uniform(-2, 2, 2) * max(1, w // 32)
+    if shown:
+        vx = vy = 0.0
     rgb = np.empty((frames, h, w, 3), np.uint8)
     events = np.zeros((frames, 2, h, w), np.uint8)
     centre = np.empty((frames, 2), np.float32)
@@ -37,7 +41,8 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, va
         if not 0 <= y <= h - side:
             vy, y = -vy, float(np.clip(y, 0, h - side))
         mask = np.zeros((h, w), bool)
-        mask[int(y):int(y) + side, int(x):int(x) + side] = True
+        if not shown or t < shown:
+            mask[int(y):int(y) + side, int(x):int(x) + side] = True
         rgb[t] = rng.integers(0, 40, (h, w, 3), dtype=np.uint8)
         if vary_gain:   # the background's level follows the gain: a global cue, quick to learn
             rgb[t] += np.uint8(100 * gain[t])
@@ -55,21 +60,27 @@ def _frames(rng: np.random.Generator, frames: int, h: int, w: int, side: int, va
 def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, height: int = 32,
                  width: int = 32, seed: int = 0, task: str = "nav",
                  target: str = "position", event_bins: int = 1,
-                 compression: str = "none") -> Path:
+                 compression: str = "none", truth: bool = False) -> Path:
     """Write ``episodes`` episode files and index.json under ``root``.
 
     target "position": nav [v, w] from the square's centre (learnt only after a few hundred
     steps: attention must first find the square's patch);
     "gain": v = w = the square's brightness mapped to [-1, 1], visible in the mean of every
-    channel, so a few epochs show the loss falling.
+    channel, so a few epochs show the loss falling;
+    "remember": as "position", but the square stands still and shows in the first 2
+    frames only: after them the action is what the first frames showed, which a policy
+    without memory cannot know.
+    ``truth``: record the sim's truth as nav scenes give it (truth/centroid px,
+    truth/visible, truth/image), for the target head.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     index = DatasetIndex(root, task)
     for e in range(episodes):
+        shown = 2 if target == "remember" else 0
         rgb, events, centre, gain = _frames(rng, frames, height, width, max(4, width // 5),
-                                            vary_gain=target == "gain")
+                                            vary_gain=target == "gain", shown=shown)
         if task == "nav":
             if target == "gain":
                 targets = np.stack([gain * 2 - 1.2, gain * 2 - 1.2], axis=1)
@@ -88,8 +99,14 @@ def make_dataset(root: str | Path, *, episodes: int = 6, frames: int = 24, heigh
         path = index.path_for(index.next_episode_number())
         with EpisodeWriter(path, task, attrs, compression=compression) as w:
             for t in range(frames):
+                seen = not shown or t < shown
+                told = ({"truth": {"centroid": [float(centre[t, 0] * width),
+                                                float(centre[t, 1] * height)]
+                                   if seen else [-1.0, -1.0],
+                                   "visible": seen, "image": [width, height]}}
+                        if truth else {})
                 w.append(rgb=rgb[t], event_frame=events[t], t_sim=t / 30.0, tick=t,
-                         **{"action" if task == "nav" else "pose": targets[t]})
+                         **{"action" if task == "nav" else "pose": targets[t]}, **told)
             w.finish("synthetic")
         index.add(make_entry(path))
     return root

@@ -55,3 +55,17 @@ def test_a_dataset_without_the_validation_episodes_is_refused(trained, tmp_path,
             capsys.readouterr().err
         assert tool.main([str(tmp_path / "none.pt"), str(data)]) == 2
         assert "none" in capsys.readouterr().err
+
+
+def test_a_recipe_checkpoint_recomputes_its_loss_on_its_lanes(tmp_path):
+    """A checkpoint trained on lanes of ticks (a GRU's state carried) validates on them
+    again: the recorded loss, exactly, not a per-frame loss from the empty state."""
+    data = make_dataset(tmp_path / "data", episodes=5, frames=16, target="gain")
+    train(data, tmp_path / "ckpt", "nav", ["event"], epochs=2, memory="gru", seq_len=4,
+          lanes=2, norm=Normalisation(size=32), progress=False, log=lambda s: None)
+    with tool_module("eval/val_loss") as tool:
+        out = tmp_path / "r.json"
+        assert tool.main([str(tmp_path / "ckpt" / "nav-event.pt"), str(data),
+                          "--json", str(out)]) == 0
+        result = json.loads(out.read_text())
+    assert result["same"] and result["val_loss_now"] == result["val_loss_recorded"]

@@ -21,6 +21,9 @@ Layout of ``episode_NNNN.h5`` (T frames, one row per control tick):
     proprio        [T, D]        float32  the robot's proprioception at the tick (optional;
                                           NaN: not given that frame): sebvs/sim/proprio.py,
                                           components named by the attribute proprio_names
+    drive          [T, D]        float32  the command that drove the sim at the tick, where
+                                          another actor than the labelling expert drove
+                                          (optional; DAgger: the policy's, attribute driver)
 
 Attributes: task, scene, conditions (JSON), seed, topology (JSON), emulator (JSON),
 event_scale, event_offset, version, end_reason, frames, plus any extra scalar or JSON
@@ -132,6 +135,7 @@ class EpisodeWriter:
         self._truth: dict[str, dict[int, np.ndarray]] = {}
         self._modality: dict[int, bytes] = {}
         self._proprio: dict[int, np.ndarray] = {}
+        self._drive: dict[int, np.ndarray] = {}
 
     def set_attrs(self, attrs: dict) -> None:
         """Set or update file attributes (dicts and lists are stored as JSON text)."""
@@ -160,15 +164,16 @@ class EpisodeWriter:
                pose: np.ndarray | None = None, latency: dict[str, float] | None = None,
                truth: dict[str, Any] | None = None, modality: str | None = None,
                raw_events: dict[str, np.ndarray] | None = None,
-               proprio: np.ndarray | None = None) -> int:
+               proprio: np.ndarray | None = None, drive: np.ndarray | None = None) -> int:
         """Write one frame; returns its row index.
 
         rgb [H, W, 3] uint8; event_frame [2, H', W'] counts (clipped to 0..255);
         action [2] (nav) or pose [6] (arm) float; latency {hop: microseconds};
         truth {name: number or array, same shape every frame}; raw_events {"x", "y",
-        "t", "p"} equal-length 1-D; proprio [D] float, the same D every frame. rgb,
+        "t", "p"} equal-length 1-D; proprio [D] float, the same D every frame; drive
+        [D] float, the command that drove the tick (same D every frame). rgb,
         event_frame and raw_events must be given in every frame or in none; latency,
-        truth, modality and proprio may be missing (NaN / empty there).
+        truth, modality, proprio and drive may be missing (NaN / empty there).
         """
         target = pose if self.target_key == "pose" else action
         if target is None:
@@ -228,6 +233,13 @@ class EpisodeWriter:
                 raise ValueError(f"proprio must have {first.size} values every frame, got "
                                  f"{proprio.size}")
             self._proprio[i] = proprio
+        if drive is not None:
+            drive = np.asarray(drive, np.float32).reshape(-1)
+            first = next(iter(self._drive.values()), drive)
+            if drive.shape != first.shape:
+                raise ValueError(f"drive must have {first.size} values every frame, got "
+                                 f"{drive.size}")
+            self._drive[i] = drive
         self.frames += 1
         return i
 
@@ -254,6 +266,7 @@ class EpisodeWriter:
                     del columns[key]        # no row left to give the column its shape
         self._modality = {i: v for i, v in self._modality.items() if i < n}
         self._proprio = {i: v for i, v in self._proprio.items() if i < n}
+        self._drive = {i: v for i, v in self._drive.items() if i < n}
         if "events/offset" in self.f:
             off = self.f["events/offset"]
             self.raw_count = int(off[n])
@@ -337,12 +350,12 @@ class EpisodeWriter:
             for i, v in self._modality.items():
                 col[i] = v
             f.create_dataset("modality", data=col)
-        if self._proprio:
-            dim = next(iter(self._proprio.values())).size
-            col = np.full((n, dim), np.nan, np.float32)
-            for i, v in self._proprio.items():
-                col[i] = v
-            f.create_dataset("proprio", data=col)
+        for key, rows in (("proprio", self._proprio), ("drive", self._drive)):
+            if rows:
+                col = np.full((n, next(iter(rows.values())).size), np.nan, np.float32)
+                for i, v in rows.items():
+                    col[i] = v
+                f.create_dataset(key, data=col)
 
     def abandon(self) -> None:
         """Close after a failed write (a full disk), keeping the .partial file as the mark
@@ -380,8 +393,9 @@ class Episode:
     ``truth`` {name: [T, ...]}, ``modality`` [T] or None, ``raw_events`` (x, y, t, p,
     offset datasets) or None, ``proprio`` [T, D] float32 or None (episodes recorded before
     the recorder stored it, or without the sim's `proprio` wired), its components
-    ``proprio_names`` (a tuple, empty without); ``attrs`` is a plain dict with JSON
-    attributes decoded.
+    ``proprio_names`` (a tuple, empty without); ``drive`` [T, D] float32 or None (the
+    command that drove each tick, where a policy drove and the expert labelled);
+    ``attrs`` is a plain dict with JSON attributes decoded.
     """
 
     def __init__(self, path: str | Path):
@@ -431,6 +445,7 @@ class Episode:
         self.raw_events = ({k: named(f[f"events/{k}"]) for k in ("x", "y", "t", "p", "offset")}
                            if "events/x" in f else None)
         self.proprio = named(f["proprio"]) if "proprio" in f else None
+        self.drive = named(f["drive"]) if "drive" in f else None
         names = self.attrs.get("proprio_names") or ()
         self.proprio_names = tuple(str(n) for n in names) if isinstance(names, list) else ()
 

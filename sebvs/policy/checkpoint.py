@@ -29,7 +29,8 @@ from .resume import RESUME_SUFFIX, first_non_finite
 # the state_dict key of the config record; no module attribute can be named so (a dot-free
 # name with a leading underscore is not a parameter or buffer path of ERP)
 CONFIG_RECORD = "_sebvs_config"
-RECORDED = ("task", "modality", "size", "stem", "channels", "channel_order", "normalisation")
+RECORDED = ("task", "modality", "size", "stem", "memory", "aux", "channels", "channel_order",
+            "normalisation")
 
 
 class CheckpointError(ValueError):
@@ -68,7 +69,7 @@ def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
         raise CheckpointError(f"checkpoint {pt}: not written, weight {bad} is not finite")
     # what the model itself says it is, where it says it (ERP does), over the config's word
     for key, attr in (("task", "task"), ("size", "size"), ("stem", "stem"),
-                      ("channels", "in_channels")):
+                      ("memory", "memory"), ("aux", "aux"), ("channels", "in_channels")):
         if hasattr(model, attr) and key in config and config[key] != getattr(model, attr):
             raise CheckpointError(f"checkpoint {pt}: not written, config {key} "
                                   f"{config[key]!r} is not the model's {getattr(model, attr)!r}")
@@ -81,11 +82,12 @@ def save_checkpoint(model, config: dict, out_dir: str | Path) -> Path:
 
 
 def model_config(task: str, modality: Modality | str, norm: Normalisation,
-                 stem: str = "patch") -> dict:
+                 stem: str = "patch", memory: str = "none", aux: bool = False) -> dict:
     """The part of a config that decides the architecture and its input (the modality by
     its name, as the JSON holds it)."""
     modality = Modality.parse(modality)
     return {"task": task, "modality": modality.value, "size": norm.size, "stem": stem,
+            "memory": memory, "aux": bool(aux),
             "channels": modality.channels(norm.event_bins),
             "channel_order": modality.channel_names(norm.event_bins),
             "normalisation": norm.to_dict()}
@@ -213,7 +215,8 @@ def load_checkpoint(pt_path: str | Path, *, expect: dict | None = None):
     describes = (f"task {fields['task']}, modality {fields['modality']}, size "
                  f"{fields['size']}, stem {fields['stem']}")
     try:
-        model = ERP(fields["task"], fields["channels"], fields["size"], stem=fields["stem"])
+        model = ERP(fields["task"], fields["channels"], fields["size"], stem=fields["stem"],
+                    memory=fields["memory"], aux=fields["aux"])
     except ValueError as exc:   # validated above: a stem that refuses these channels
         raise CheckpointError(f"checkpoint config {js}: {_first_line(exc)}") from None
     try:

@@ -10,7 +10,9 @@ bins, the normalisation's size is the model's). Every refusal is a ValueError of
 naming the file and the key; checkpoint.py raises it as a CheckpointError.
 
 Required: version, task, modality, size, channels, channel_order, normalisation.
-Optional: stem ("patch" where absent: configs written before the conv stem existed), and
+Optional: stem ("patch" where absent: configs written before the conv stem existed),
+memory ("none") and aux (false) where absent (configs written before the recurrent state
+and the target head existed), and
 the record emulator {"preset", "preset_version"} (the event emulator the training data
 was recorded with; where absent, preset_version 1: the shipped checkpoints'). Other keys
 (dataset, training, target_stats, event_frames, ...) are records, not read to build the
@@ -45,18 +47,21 @@ def check_stem(stem: str, modality: Modality | str) -> None:
 
 def _fields() -> dict[str, Any]:
     """Key -> type of the fields a model is built from (model.py read lazily: torch)."""
-    from .model import STEMS, TASK_OUTPUTS
+    from .model import MEMORIES, STEMS, TASK_OUTPUTS
     return {"version": Literal[CONFIG_VERSION],
             "task": Literal[tuple(TASK_OUTPUTS)],
             "modality": Literal[tuple(m.value for m in Modality)],
             "size": Annotated[int, Range(ge=PATCH, le=MAX_SIZE)],
             "stem": Literal[tuple(STEMS)],
+            "memory": Literal[tuple(MEMORIES)],
+            "aux": bool,
             "channels": Annotated[int, Range(ge=1, le=3 + 2 * 64)],
             "channel_order": list[str],
             "normalisation": dict}
 
 
-OPTIONAL = {"stem": "patch"}
+# where absent, a config written before the field existed: the paper's architecture
+OPTIONAL = {"stem": "patch", "memory": "none", "aux": False}
 # the emulator record (train.py writes it for modalities with events), key -> type; its
 # preset_version is what an evaluation runs the emulator's noise model at
 EMULATOR_FIELDS = {"preset": Optional[str], "preset_version": Literal[PRESET_VERSIONS]}

@@ -2,7 +2,10 @@
 when a command runs.
 
     sebvs train --task nav --modality all --data datasets/nav --out checkpoints/nav
+    sebvs train --task nav --modality rgb --data datasets/nav --data datasets/nav_dagger1 ...
     sebvs train-sweep nav_sweep.toml --out out/sweep_nav --workers 8 --threads 2
+    sebvs train-dagger --task nav --modality rgb --data datasets/nav --out out/dagger \
+        --rounds 3 --episodes 10 --workers 4
 """
 from __future__ import annotations
 
@@ -31,8 +34,8 @@ def _workers(text: str) -> int | str:
 
 
 def _cmd_train(args) -> int:
-    from .inputs import MODALITIES, Normalisation
-    from .train import loader_workers, train
+    from .inputs import MODALITIES
+    from .train import train
     modalities = list(MODALITIES) if args.modality == "all" else [args.modality]
     try:
         check_train_outputs(args.out, args.data, args.task, modalities, args.force)
@@ -44,18 +47,67 @@ def _cmd_train(args) -> int:
               f"one batch of 32 takes ~8 s (tools/bench/bench_policy.py). Use --device cuda, or "
               f"--size 160.", file=sys.stderr)
     try:
-        train(args.data, args.out, args.task, modalities, progress=not args.no_progress,
-              epochs=args.epochs, batch=args.batch, seed=args.seed, max_frames=args.max_frames,
-              num_workers=(loader_workers(args.device) if args.workers == "auto"
-                           else args.workers),
-              cache=args.cache, threads=args.threads, val_fraction=args.val_fraction,
-              patience=args.patience, lr=args.lr, device=args.device, stem=args.stem,
-              zero_subnormals=args.zero_subnormals,
-              norm=Normalisation(size=args.size, event_clip=args.event_clip))
+        train(args.data if len(args.data) > 1 else args.data[0], args.out, args.task,
+              modalities, progress=not args.no_progress,
+              **train_overrides(args, args.workers))
     except (FileNotFoundError, ValueError) as exc:   # bad data or settings: say so, no trace
         print(f"sebvs train: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def train_overrides(args, workers: int | str) -> dict:
+    """The TrainSettings fields `sebvs train`'s options set (train.train's keywords):
+    what `sebvs train` and `sebvs train-dagger` train with.
+
+    Parameters:
+        args: the parsed options of `add_train_arguments`.
+        workers: the DataLoader workers option, a count or "auto".
+
+    Returns:
+        The overrides (None: the paper's default).
+    """
+    from .inputs import Normalisation
+    from .train import loader_workers
+    return dict(epochs=args.epochs, batch=args.batch, seed=args.seed,
+                max_frames=args.max_frames,
+                num_workers=loader_workers(args.device) if workers == "auto" else workers,
+                cache=args.cache, threads=args.threads, val_fraction=args.val_fraction,
+                patience=args.patience, lr=args.lr, device=args.device, stem=args.stem,
+                zero_subnormals=args.zero_subnormals, **recipe_settings(args),
+                norm=Normalisation(size=args.size, event_clip=args.event_clip))
+
+
+def recipe_settings(args) -> dict:
+    """The recipe options of `sebvs train` (memory, target head, modality dropout,
+    sequences) as TrainSettings fields; an option not given keeps its default."""
+    names = ("memory", "aux_weight", "modality_dropout", "seq_len", "lanes")
+    return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
+
+
+def _add_recipe_options(t) -> None:
+    """The recipe options (issue 65, item 2; docs/policy.md, "Memory, target head and
+    modality dropout"). Any of them trains on lanes of consecutive ticks."""
+    g = t.add_argument_group(
+        "recipe options", "off by default (the paper's per-tick behaviour cloning); any of "
+        "them trains on B lanes of L consecutive ticks, the state carried from batch to "
+        "batch (truncated backpropagation through time)")
+    g.add_argument("--memory", choices=["none", "gru"], default=None,
+                   help="a recurrent state across control ticks: gru (a GRU cell over the "
+                        "encoded class token); the policy actor resets it per episode and at "
+                        "a modality swap (default none)")
+    g.add_argument("--aux-weight", type=float, default=None, metavar="W",
+                   help="> 0: the target head, trained to predict the target's image "
+                        "position and visibility from the sim's truth (truth/centroid, "
+                        "truth/visible), its loss weighted by W; training only (default 0)")
+    g.add_argument("--modality-dropout", type=float, default=None, metavar="P",
+                   help="fused modalities: the share of lane batches whose RGB or event "
+                        "planes (one, as likely) are zeroed, so that neither stream can be "
+                        "ignored (default 0)")
+    g.add_argument("--seq-len", type=int, default=None, metavar="L",
+                   help="ticks per batch a lane backpropagates through (default 8)")
+    g.add_argument("--lanes", type=int, default=None, metavar="B",
+                   help="episodes played side by side: the batch's lanes (default 8)")
 
 
 def check_train_outputs(out, data, task: str, modalities: list[str], force: bool) -> None:
@@ -66,7 +118,8 @@ def check_train_outputs(out, data, task: str, modalities: list[str], force: bool
 
     from sebvs.output_guard import check_output_dir, check_output_file
     from .checkpoint import checkpoint_paths
-    check_output_dir(out, inputs=[data], owns=lambda p: True, what="checkpoints")
+    check_output_dir(out, inputs=data if isinstance(data, list) else [data],
+                     owns=lambda p: True, what="checkpoints")
     for modality in modalities:
         pt, js = checkpoint_paths(out, task, modality)
         for path in (pt, js, Path(out) / f"{task}-{modality}-losses.csv"):
@@ -110,13 +163,15 @@ def _cmd_train_sweep(args) -> int:
 
 
 def register(subparsers) -> None:
-    """Add `sebvs train` and `sebvs train-sweep` to sebvs's subcommands.
+    """Add `sebvs train`, `sebvs train-sweep` and `sebvs train-dagger` to sebvs's
+    subcommands.
 
     Parameters:
         subparsers: what ``argparse.ArgumentParser.add_subparsers`` returned.
     """
     _register_train(subparsers)
     _register_train_sweep(subparsers)
+    _register_train_dagger(subparsers)
 
 
 def _register_train(subparsers) -> None:
@@ -129,13 +184,23 @@ def _register_train(subparsers) -> None:
                     ".json, loss CSVs and <out>/<task>-losses.png. A stopped training "
                     "goes on after its last finished epoch when the same command runs again "
                     "(<out>/<task>-<modality>.resume.pt), to the same weights.")
+    add_train_arguments(t)
+    t.set_defaults(func=_cmd_train)
+
+
+def add_train_arguments(t) -> None:
+    """`sebvs train`'s options, on parser ``t``: `sebvs train-dagger` takes them too
+    (`train_overrides` turns them into TrainSettings fields)."""
     t.add_argument("--task", required=True, choices=["nav", "arm"])
     t.add_argument("--modality", required=True,
                    choices=["rgb", "event", "rgb+event", "all", "rgb+diff"],
                    help="'all' trains the three variants one after another; rgb+diff is a "
                         "control, not one of them: the RGB frame and its change since the "
                         "previous tick's, as a frame camera would give (docs/policy.md)")
-    t.add_argument("--data", required=True, help="dataset directory (index.json + episodes)")
+    t.add_argument("--data", required=True, action="append", metavar="DIR",
+                   help="dataset directory (index.json + episodes); repeat it to train on "
+                        "several together (their episodes split as one, by episode; one "
+                        "task and one event representation)")
     t.add_argument("--out", required=True, help="where checkpoints and curves go")
     t.add_argument("--size", type=_size, default=160,
                    help="input side in px, or a preset: cpu=160 (100 tokens), "
@@ -179,7 +244,7 @@ def _register_train(subparsers) -> None:
                         "CPU computes several times slower (sebvs/policy/subnormal.py); "
                         "changes the weights, so a recipe says whether it is on")
     t.add_argument("--no-progress", action="store_true", help="no tqdm bars")
-    t.set_defaults(func=_cmd_train)
+    _add_recipe_options(t)
 
 
 def _register_train_sweep(subparsers) -> None:
@@ -204,6 +269,7 @@ def _register_train_sweep(subparsers) -> None:
   lr = [2e-4, 5e-4]
 
 settings: modality, seed, lr, stem, epochs, batch, size, event_clip, max_frames,
+memory, aux_weight, modality_dropout, seq_len, lanes (the recipe options),
 patience, val_fraction (sebvs train's options; one not given keeps its default).
 A point's directory is named by its modality, seed and other axes, e.g.
 modality=event__seed=1__lr=0.0005. A rerun into the same OUT skips points whose
@@ -240,3 +306,81 @@ docs/scale.md, "Sweeps".""")
     w.add_argument("--dry-run", action="store_true",
                    help="list the points and which are trained already; train nothing")
     w.set_defaults(func=_cmd_train_sweep)
+
+
+def _cmd_train_dagger(args) -> int:
+    from .dagger import DaggerSettings, run_dagger
+    try:
+        settings = DaggerSettings(
+            task=args.task, modality=args.modality, base=tuple(args.data),
+            episodes=args.episodes, episode_s=args.episode_s, first_seed=args.first_seed,
+            topology=args.topology, sets=tuple(args.set), init=args.init,
+            train=train_overrides(args, args.loader_workers))
+        run_dagger(settings, args.out, args.rounds, workers=args.workers,
+                   progress=not args.no_progress, force=args.force)
+    except (FileNotFoundError, ValueError) as exc:   # bad data or settings: one line
+        print(f"sebvs train-dagger: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _register_train_dagger(subparsers) -> None:
+    """`sebvs train-dagger`: `sebvs train`'s options (add_train_arguments) and the rounds'
+    own, run by `_cmd_train_dagger`. A command of its own beside train-sweep rather than
+    flags of `sebvs train`: a round records as well as trains, and its --workers are the
+    recording's fan-out, not DataLoader workers."""
+    d = subparsers.add_parser(
+        "train-dagger", conflict_handler="resolve",
+        help="DAgger rounds: the policy drives, the expert labels, retrain on all of it",
+        description="DAgger (Ross et al. 2011) for one modality. Round 0 trains it on the "
+                    "base data (or --init drives round 1); each round r then records "
+                    "--episodes episodes of topologies/nav_dagger.toml with round r-1's "
+                    "checkpoint driving and the expert labelling every tick, on topology "
+                    "seed --first-seed + r - 1 (train split only), into "
+                    "<out>/round-<r>/data, checks it as `sebvs data check` does, and trains "
+                    "on the base data plus every round's into <out>/round-<r>/checkpoints. "
+                    "<out>/dagger.json is the ledger: run the command again to go on at "
+                    "the first unfinished round (docs/policy.md, \"DAgger rounds\"). "
+                    "Training options are `sebvs train`'s.")
+    add_train_arguments(d)
+    # redefined for the rounds (conflict_handler "resolve" replaces train's)
+    d.add_argument("--task", required=True, choices=["nav", "arm"],
+                   help="nav (topologies/nav_dagger.toml); arm needs a --topology of your "
+                        "own: its scene holds HOME, so a policy's poses change no frame")
+    d.add_argument("--modality", required=True,
+                   choices=["rgb", "event", "rgb+event", "rgb+diff"],
+                   help="the one modality that drives and is trained")
+    d.add_argument("--data", required=True, action="append", metavar="DIR",
+                   help="base dataset, the expert's recording (repeatable)")
+    d.add_argument("--out", required=True, metavar="DIR",
+                   help="the run's folder: dagger.json and round-<r>/{data,checkpoints}")
+    d.add_argument("--loader-workers", type=_workers, default="auto", metavar="N|auto",
+                   help="DataLoader workers of each training (sebvs train --workers; "
+                        "default auto)")
+    d.add_argument("--force", action="store_true",
+                   help="write into a non-empty folder that holds no dagger.json (a run of "
+                        "other settings is refused either way: give another --out)")
+    g = d.add_argument_group("rounds")
+    g.add_argument("--rounds", type=int, required=True, metavar="R",
+                   help="finish rounds up to R (a later call with a larger R goes on)")
+    g.add_argument("--episodes", type=int, required=True, metavar="E",
+                   help="episodes recorded per round (at least 2)")
+    g.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes each round's recording fans out over (sebvs record "
+                        "--workers; default one)")
+    g.add_argument("--episode-s", type=float, default=None, metavar="SECONDS",
+                   help="episode length of the rounds' recordings (default the topology's)")
+    g.add_argument("--first-seed", type=seed_arg, default=500, metavar="S",
+                   help="round 1's topology seed; round r records on S + r - 1, which must "
+                        "stay in the train split (0-999) and off the base data's seeds "
+                        "(default 500)")
+    g.add_argument("--init", default=None, metavar="DIR",
+                   help="a folder with <task>-<modality>.pt to drive round 1 (default: "
+                        "round 0 trains one on the base data)")
+    g.add_argument("--topology", default=None, metavar="FILE",
+                   help="the recording topology, its recorder's drive wired to a policy "
+                        "(default topologies/nav_dagger.toml)")
+    g.add_argument("--set", action="append", default=[], metavar="ACTOR.KEY=VALUE",
+                   help="override the recording topology in every round, as sebvs record "
+                        "--set (repeatable)")
+    d.set_defaults(func=_cmd_train_dagger)

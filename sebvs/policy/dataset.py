@@ -7,7 +7,10 @@
 
 The files are sebvs/data's (``open_episode``, ``DatasetIndex``): an HDF5 per episode with
 ``rgb``, ``events/frame``, ``action`` (nav) or ``pose`` (arm), ``t_sim`` and ``tick``, and
-``index.json`` listing them. The dataset is an index of (episode, frame) pairs and each item
+``index.json`` listing them. Several datasets train together (DAgger's rounds beside the
+expert's recording): `load_datasets` tags each index entry with its dataset (``root``), and
+every reader here opens ``entry["root"] / entry["file"]`` (the ``root`` argument where an
+entry has none). The dataset is an index of (episode, frame) pairs and each item
 reads one frame. Episodes open in the reading process (DataLoader workers open their own)
 and at most ``OPEN_EPISODES`` stay open, released rather than closed; `EpisodeBlockSampler`
 shuffles episodes in blocks that fit the open set. `EpisodeFrames.preload()` reads the
@@ -54,18 +57,71 @@ def load_index(root: str | Path, task: str | None = None, verify: bool = True,
     return episodes
 
 
+def episode_path(root: str | Path, entry: dict) -> Path:
+    """Where an index entry's file is: in its own dataset (``entry["root"]``, set by
+    `load_datasets`), else in ``root``."""
+    return Path(entry.get("root", root)) / entry["file"]
+
+
+def roots_of(root: str | Path, episodes: list[dict]) -> list[Path]:
+    """The datasets the entries come from, in order of first appearance (``root`` for
+    entries without their own)."""
+    return list(dict.fromkeys(Path(e.get("root", root)) for e in episodes)) or [Path(root)]
+
+
+def load_datasets(roots: list[str | Path], task: str | None = None, verify: bool = True,
+                  progress: bool = False) -> list[dict]:
+    """The episodes of several datasets, in the order given, each entry tagged with its
+    dataset (``root``: the path as given), for training them together.
+
+    Parameters:
+        roots: the dataset directories (at least one; none twice).
+        task: the task every one must hold (None: the first one's).
+        verify, progress: as `load_index`.
+
+    Returns:
+        The index entries of every dataset, the first's first. ValueError, one line
+        naming both, for two datasets of different tasks or one given twice.
+    """
+    roots = [Path(r) for r in roots]
+    if not roots:
+        raise ValueError("no dataset given")
+    seen: dict[Path, Path] = {}
+    for r in roots:
+        same = seen.setdefault(r.resolve(), r)
+        if same is not r:
+            raise ValueError(f"dataset {r} is given twice (as {same} and {r})")
+    tasks = {}
+    for r in roots:
+        if not (r / INDEX).exists():
+            raise FileNotFoundError(f"{r}: no {INDEX} (record with `sebvs record`, or check "
+                                    f"the path)")
+        tasks[r] = DatasetIndex(r).task
+    known = [(r, t) for r, t in tasks.items() if t is not None]
+    for r, t in known[1:]:
+        if t != known[0][1]:
+            raise ValueError(f"datasets {known[0][0]} (task {known[0][1]}) and {r} (task "
+                             f"{t}) hold different tasks: one task per training")
+    episodes = []
+    for r in roots:
+        episodes += [{**e, "root": str(r)} for e in load_index(r, task, verify, progress)]
+    return episodes
+
+
 def dataset_hash(root: str | Path, episodes: list[dict]) -> str:
-    """sha256 over index.json (if any) and each episode's name and byte size.
+    """sha256 over index.json (if any) of each dataset the entries come from, and each
+    episode's name and byte size.
 
     Cheap (no frame is read) and changes when an episode is re-recorded, added or removed.
+    Entries of one dataset (``root``) hash as they always did.
     """
-    root = Path(root)
     h = hashlib.sha256()
-    index = root / INDEX
-    if index.exists():
-        h.update(index.read_bytes())
+    for r in roots_of(root, episodes):
+        index = r / INDEX
+        if index.exists():
+            h.update(index.read_bytes())
     for e in episodes:
-        h.update(f"{e['file']}:{(root / e['file']).stat().st_size}\n".encode())
+        h.update(f"{e['file']}:{episode_path(root, e).stat().st_size}\n".encode())
     return h.hexdigest()
 
 
@@ -97,10 +153,10 @@ def content_digest(root: str | Path, episodes: list[dict], modality: Modality | 
     same compression (the chunks are hashed as stored, undecoded). It reads the stored
     bytes once (seconds for gigabytes; nothing is decoded but the small unchunked arrays)."""
     modality = Modality.parse(modality)
-    root, h = Path(root), hashlib.sha256()
+    h = hashlib.sha256()
     for e in episodes:
         h.update(f"{e['file']}\n".encode())
-        ep = open_episode(root / e["file"])
+        ep = open_episode(episode_path(root, e))
         try:
             if modality.reads_rgb:
                 _stored_bytes(h, ep.rgb)
@@ -124,8 +180,26 @@ def event_frames_of(root: str | Path, episodes: list[dict]) -> dict:
     emulator's [w, h], "output": the frames' [w, h]} (window and sensor None where the
     recording did not say). Training takes K from here, and the checkpoint keeps the whole
     so that an evaluation can make its event frames the same way.
-    Voxel grids (signed, float) are refused: no model input is defined for them."""
-    path = Path(root) / episodes[0]["file"]
+    Voxel grids (signed, float) are refused: no model input is defined for them.
+    Entries of several datasets (`load_datasets`) must agree: ValueError, one line naming
+    the first two that do not and what differs."""
+    found = {}
+    for e in episodes:      # each dataset's first episode
+        r = Path(e.get("root", root))
+        if r not in found:
+            found[r] = _event_frames_of(episode_path(root, e))
+    (r0, f0), *rest = found.items()
+    for r, f in rest:
+        differs = [k for k in f0 if f0[k] != f[k]]
+        if differs:
+            k = differs[0]
+            raise ValueError(f"datasets {r0} and {r} hold different event frames ({k} "
+                             f"{f0[k]} and {f[k]}): one event representation per training")
+    return f0
+
+
+def _event_frames_of(path: Path) -> dict:
+    """`event_frames_of` for one episode file."""
     with open_episode(path) as ep:
         if ep.event_frame is None:
             raise ValueError(f"{path}: no events/frame")
@@ -170,7 +244,7 @@ def emulator_of(root: str | Path, episodes: list[dict]) -> dict:
     root = Path(root)
     presets, versions = set(), {}          # version -> the first episode recorded with it
     for e in episodes:
-        ep = open_episode(root / e["file"])
+        ep = open_episode(episode_path(root, e))
         try:
             emulator = ep.attrs.get("emulator")
         finally:
@@ -179,10 +253,10 @@ def emulator_of(root: str | Path, episodes: list[dict]) -> dict:
         resolved = emulator.get("resolved")
         version = resolved.get("preset_version", 1) if isinstance(resolved, dict) else 1
         if type(version) is not int or version not in PRESET_VERSIONS:
-            raise ValueError(f"{root / e['file']}: emulator preset_version "
+            raise ValueError(f"{episode_path(root, e)}: emulator preset_version "
                              f"{short_repr(version)} is not one of "
                              f"{', '.join(map(str, PRESET_VERSIONS))}")
-        versions.setdefault(version, e["file"])
+        versions.setdefault(version, str(episode_path(root, e)) if "root" in e else e["file"])
         presets.add(emulator.get("preset") if isinstance(emulator.get("preset"), str)
                     else None)
     if len(versions) > 1:
@@ -283,7 +357,8 @@ class EpisodeFrames:
     """A map-style dataset: item i -> (x float32 [C, S, S], y float32 [2] or [6]).
 
     Args:
-        root: dataset directory; episodes: entries of its index (``file``, ``frames``).
+        root: dataset directory; episodes: entries of its index (``file``, ``frames``;
+            ``root``, their own dataset, where they come from several: `load_datasets`).
         task: "nav" (target ``action``) or "arm" (target ``pose``).
         modality: which streams make x (see inputs.py); norm: how they are prepared.
         max_frames: if > 0, keep at most this many items, evenly strided over all frames
@@ -297,6 +372,7 @@ class EpisodeFrames:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
         self.root, self.task, self.modality, self.norm = Path(root), task, modality, norm
         self.files = [e["file"] for e in episodes]
+        self.paths = [episode_path(self.root, e) for e in episodes]
         self.frame_counts = [int(e["frames"]) for e in episodes]
         pairs = [(ei, t) for ei, e in enumerate(episodes) for t in range(int(e["frames"]))]
         if max_frames and len(pairs) > max_frames:
@@ -370,7 +446,7 @@ class EpisodeFrames:
         else:
             while len(self._handles) >= OPEN_EPISODES:
                 self._handles.popitem(last=False)[1].release()
-            ep = open_episode(self.root / self.files[ei])
+            ep = open_episode(self.paths[ei])
             if ep.task != self.task:
                 ep.close()
                 raise ValueError(f"{ep.path}: episode of task {ep.task!r}, training {self.task!r}")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .checkpoint import checkpoint_paths, load_checkpoint
-from .graph import check_graph, inference_graph
+from .graph import check_graph, inference_graph, step_module
 from .inputs import PAPER_MODALITIES, Modality, Normalisation, model_input
 
 
@@ -32,8 +32,14 @@ class LoadedPolicy:
     config: dict
     norm: Normalisation
     path: str
-    run: object              # what act() calls: the model, or its frozen graph (graph.py)
+    run: object              # what act() calls: the model, or its frozen graph (graph.py);
+                             # with memory, its step: (x, state) -> (y, state)
     graph: str               # which of the two it is
+    state: object = None     # with memory: the state [1, D] the next tick starts from
+
+    @property
+    def recurrent(self) -> bool:
+        return self.model.state_size > 0
 
 
 def resolve_checkpoints(checkpoints: dict, directory: str, task: str,
@@ -82,10 +88,15 @@ class PolicySet:
             expect = {"modality": m, **({"task": task} if task else {})}
             model, cfg, norm = load_checkpoint(path, expect=expect)
             example = torch.zeros(1, model.in_channels, model.size, model.size)
-            run, used, why = inference_graph(model, example, graph)
+            if model.state_size:
+                run, used, why = inference_graph(step_module(model),
+                                                 (example, model.initial_state()), graph)
+            else:
+                run, used, why = inference_graph(model, example, graph)
             if why:
                 self.fallbacks[m] = why
-            self.policies[m] = LoadedPolicy(model, cfg, norm, str(path), run, used)
+            self.policies[m] = LoadedPolicy(model, cfg, norm, str(path), run, used,
+                                            model.initial_state() if model.state_size else None)
         # one input array per modality, refilled every call: no per-tick allocation (the
         # model reads it within act(), and act() returns a copy of the output)
         self._inputs = {m: np.empty((p.model.in_channels, p.norm.size, p.norm.size),
@@ -125,18 +136,33 @@ class PolicySet:
     def modalities(self) -> list[Modality]:
         return list(self.policies)
 
+    @property
+    def recurrent(self) -> list[Modality]:
+        """The loaded modalities whose model carries a state across ticks."""
+        return [m for m, p in self.policies.items() if p.recurrent]
+
+    def reset(self, modality: Modality | str | None = None) -> None:
+        """Forget what the recurrent models remember (an episode's start, a modality
+        swap): their next tick starts from the initial state. ``modality`` None: all."""
+        for m, p in self.policies.items():
+            if p.recurrent and (modality is None or m == modality):
+                p.state = p.model.initial_state()
+
     def warm_up(self) -> None:
-        """One inference per variant on zeros: first calls allocate, keep that off tick 0."""
+        """One inference per variant on zeros: first calls allocate, keep that off tick 0.
+        The recurrent models' states are reset after it."""
         for m, p in self.policies.items():
             s, planes = p.norm.size, 2 * p.norm.event_bins
             self.act(m, rgb=np.zeros((s, s, 3), np.uint8),
                      events=np.zeros((planes, s, s), np.uint8),
                      rgb_prev=np.zeros((s, s, 3), np.uint8))
+        self.reset()
 
     def act(self, modality: Modality | str, *, rgb: np.ndarray | None = None,
             events: np.ndarray | None = None,
             rgb_prev: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
-        """Observation -> (output float32 [2] | [6], preprocess ms, inference ms)."""
+        """Observation -> (output float32 [2] | [6], preprocess ms, inference ms). A
+        recurrent model steps its state on (`reset` starts it again)."""
         p = self.policies[modality]
         t0 = time.perf_counter()
         x = model_input(modality, p.norm, rgb=rgb, events=events, rgb_prev=rgb_prev,
@@ -146,7 +172,11 @@ class PolicySet:
             x[channels] = levels
         t1 = time.perf_counter()
         with self._torch.inference_mode():
-            y = p.run(self._torch.from_numpy(x)[None])[0].numpy().astype(np.float32)
+            if p.state is not None:
+                out, p.state = p.run(self._torch.from_numpy(x)[None], p.state)
+            else:
+                out = p.run(self._torch.from_numpy(x)[None])
+            y = out[0].numpy().astype(np.float32)
         t2 = time.perf_counter()
         return y, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 

@@ -158,6 +158,9 @@ class GatedFusionStem(DualStem):
 
 STEMS = {"patch": PatchEmbedding, "conv": ConvStem, "dual": DualStem,
          "gated": GatedFusionStem}
+# what carries a policy's state from one control tick to the next: nothing (the paper's
+# per-tick model) or a GRU cell over the encoded class tokens (RecurrentState)
+MEMORIES = ("none", "gru")
 
 
 class TokenSequence(nn.Module):
@@ -264,6 +267,49 @@ class ArmHead(nn.Module):
         return torch.cat([u[:, :5] * self.scale[:5] / self.loss_unit, u[:, 5:]], dim=1)
 
 
+class RecurrentState(nn.Module):
+    """A GRU cell over the per-tick class tokens, added back to the token:
+    (token [B, D], state [B, D]) -> (features [B, D], new state [B, D]).
+
+        state' = GRUCell(token, state)
+        features = token + state'
+
+    The residual keeps the tick's own evidence one addition away from the head, so the
+    cell only has to learn what the tick does not show (where the target was when the
+    event camera, holding it still, stops seeing it). Issue 65, item 2.
+    """
+
+    def __init__(self, dim: int = 64):
+        super().__init__()
+        self.cell = nn.GRUCell(dim, dim)
+
+    def forward(self, token: torch.Tensor, state: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        state = self.cell(token, state)
+        return token + state, state
+
+
+class TargetHead(nn.Module):
+    """The auxiliary head: features [B, D] -> [B, 3], the target's image position as a
+    fraction of the width and height (sigmoid, 0..1) and its visibility as a logit.
+
+    Trained from the sim's privileged truth (truth/centroid, truth/visible), during
+    training only: it grounds the encoder in where the target is, and the actor never
+    reads it. Issue 65, item 2.
+    """
+
+    OUTPUTS = 3
+
+    def __init__(self, dim: int = 64, hidden: int = 64):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, hidden), nn.GELU(),
+                                 nn.Linear(hidden, self.OUTPUTS))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        u = self.mlp(features)
+        return torch.cat([torch.sigmoid(u[..., :2]), u[..., 2:]], dim=-1)
+
+
 class ERP(nn.Module):
     """Event-based robot policy: [B, in_channels, size, size] float -> [B, 2] (nav) or [B, 6] (arm).
 
@@ -274,11 +320,14 @@ class ERP(nn.Module):
         dim, heads, mlp, dropout, patch: the paper's 64, 4, 256, 0.1, 16.
         stem: "patch" (the paper's linear patch embedding), "conv" (ConvStem), or for
             rgb+event inputs only "dual" (DualStem) or "gated" (GatedFusionStem).
+        memory: "none" (the paper's: each tick on its own) or "gru" (RecurrentState: a
+            state [B, dim] carried across ticks; `step` and `sequence` take and return it).
+        aux: add the TargetHead (`sequence` returns its output; training only).
     """
 
     def __init__(self, task: str, in_channels: int, size: int = 160, *, dim: int = 64,
                  heads: int = 4, mlp: int = 256, dropout: float = 0.1, patch: int = 16,
-                 stem: str = "patch"):
+                 stem: str = "patch", memory: str = "none", aux: bool = False):
         super().__init__()
         if task not in TASK_OUTPUTS:
             raise ValueError(f"unknown task {task!r} (nav, arm)")
@@ -286,7 +335,10 @@ class ERP(nn.Module):
             raise ValueError(f"unknown stem {stem!r} ({', '.join(STEMS)})")
         if size % patch:
             raise ValueError(f"size {size} is not a multiple of the patch size {patch}")
+        if memory not in MEMORIES:
+            raise ValueError(f"unknown memory {memory!r} ({', '.join(MEMORIES)})")
         self.task, self.in_channels, self.size, self.stem = task, in_channels, size, stem
+        self.memory, self.aux, self.dim = memory, bool(aux), dim
         self.embed = STEMS[stem](in_channels, dim, patch)
         self.tokens = TokenSequence(size // patch, dim)
         # Pre-norm, as in ViT and RVT, whose formulation section 3.4 says it follows (its
@@ -299,6 +351,18 @@ class ERP(nn.Module):
                                                   dropout=dropout, activation="gelu",
                                                   batch_first=True, norm_first=True)
         self.head = NavHead(dim) if task == "nav" else ArmHead(dim)
+        # created after the head, so that a memoryless model draws its weights as before
+        self.recurrent = RecurrentState(dim) if memory == "gru" else None
+        self.target_head = TargetHead(dim) if aux else None
+
+    @property
+    def state_size(self) -> int:
+        """The width of the state `step` carries: dim with memory, 0 without."""
+        return self.dim if self.recurrent is not None else 0
+
+    def initial_state(self, batch: int = 1) -> torch.Tensor:
+        """The state at an episode's first tick: zeros [batch, state_size]."""
+        return torch.zeros(batch, self.state_size)
 
     def _class_token(self, x: torch.Tensor) -> torch.Tensor:
         """x [B, C, S, S] -> the encoded class token [B, dim]."""
@@ -308,8 +372,47 @@ class ERP(nn.Module):
         return self.encoder(self.tokens(self.embed(x)))[:, 0]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]."""
-        return self.head(self._class_token(x))
+        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]; with memory, from the initial
+        state (a tick with nothing remembered)."""
+        token = self._class_token(x)
+        if self.recurrent is not None:
+            token, _ = self.recurrent(token, token.new_zeros(token.shape))
+        return self.head(token)
+
+    def step(self, x: torch.Tensor, state: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One control tick: (x [B, C, S, S], state [B, state_size]) -> (action [B, 2] or
+        pose [B, 6], the next state [B, state_size]). Without memory the state is
+        returned as given (empty)."""
+        token = self._class_token(x)
+        if self.recurrent is not None:
+            token, state = self.recurrent(token, state)
+        return self.head(token), state
+
+    def sequence(self, x: torch.Tensor, state: torch.Tensor, reset: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """L ticks of B lanes, for training: (x [B, L, C, S, S], state [B, state_size],
+        reset [B, L] bool or None: the state restarts from zeros before those ticks) ->
+        (prediction in the loss space [B, L, 2 | 7], TargetHead output [B, L, 3] or None,
+        the state after the last tick [B, state_size]).
+
+        The L frames of every lane go through the encoder as one batch of B * L; only
+        the GRU runs tick by tick."""
+        b, n = x.shape[:2]
+        tokens = self._class_token(x.reshape(b * n, *x.shape[2:])).reshape(b, n, -1)
+        if self.recurrent is not None:
+            feats = []
+            for t in range(n):
+                if reset is not None:
+                    state = state * (~reset[:, t])[:, None].to(state.dtype)
+                f, state = self.recurrent(tokens[:, t], state)
+                feats.append(f)
+            tokens = torch.stack(feats, dim=1)
+        flat = tokens.reshape(b * n, -1)
+        pred = self.head.predict_loss_space(flat).reshape(b, n, -1)
+        aux = (self.target_head(flat).reshape(b, n, -1)
+               if self.target_head is not None else None)
+        return pred, aux, state
 
     def predict_loss_space(self, x: torch.Tensor) -> torch.Tensor:
         """x [B, C, S, S] -> the prediction where training compares it with loss_space(y):

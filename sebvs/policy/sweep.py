@@ -34,14 +34,17 @@ from .sweep_table import write_summary
 
 POINT_LOG = "train.log"
 # settings handed to `train` as they are (TrainSettings fields of the same names)
-TRAIN_KEYS = ("epochs", "batch", "seed", "max_frames", "lr", "patience", "val_fraction", "stem")
+TRAIN_KEYS = ("epochs", "batch", "seed", "max_frames", "lr", "patience", "val_fraction", "stem",
+              "memory", "aux_weight", "modality_dropout", "seq_len", "lanes")
 # settings a checkpoint config records, and where: how a resumed point is checked
 RECORDED = {"modality": ("modality",), "size": ("size",), "stem": ("stem",),
             "event_clip": ("normalisation", "event_clip"), "lr": ("training", "lr"),
             "weight_decay": ("training", "weight_decay"), "loss": ("training", "loss"),
             "batch": ("training", "batch"), "epochs": ("training", "epochs"),
             "patience": ("training", "patience"), "seed": ("training", "seed"),
-            "max_frames": ("training", "max_frames")}
+            "max_frames": ("training", "max_frames"), "memory": ("memory",),
+            **{k: ("training", "recipe", k)
+               for k in ("aux_weight", "modality_dropout", "seq_len", "lanes")}}
 
 
 class SweepError(ValueError):
@@ -79,7 +82,8 @@ def resolved_settings(task: str, settings: dict) -> dict:
             "loss": s.loss, "epochs": s.epochs, "batch": s.batch, "patience": s.patience,
             "plateau": s.plateau, "val_fraction": s.val_fraction, "seed": s.seed,
             "max_frames": s.max_frames, "size": s.norm.size, "event_clip": s.norm.event_clip,
-            "stem": s.stem}
+            "stem": s.stem, "memory": s.memory, "aux_weight": s.aux_weight,
+            "modality_dropout": s.modality_dropout, "seq_len": s.seq_len, "lanes": s.lanes}
 
 
 # ---------------------------------------------------------------------- the worker side

@@ -29,6 +29,7 @@ from .inputs import CONTROL_MODALITIES, MODALITIES, parse_size
 
 TASKS = ("nav", "arm")
 STEMS = ("patch", "conv", "dual", "gated")    # model.STEMS, named without importing torch
+MEMORIES = ("none", "gru")                     # model.MEMORIES, likewise
 
 
 class GridError(ValueError):
@@ -73,6 +74,20 @@ def _fraction(value: Any) -> float:
     return value
 
 
+def _share(value: Any) -> float:
+    value = _number(value)
+    if not 0 <= value <= 1:
+        raise ValueError(f"must be between 0 and 1, got {value!r}")
+    return value
+
+
+def _non_negative(value: Any) -> float:
+    value = _number(value)
+    if value < 0:
+        raise ValueError(f"must be 0 or more, got {value!r}")
+    return value
+
+
 def _one_of(options: tuple[str, ...]) -> Callable[[Any], str]:
     def check(value: Any) -> str:
         if value not in options:
@@ -100,6 +115,12 @@ SETTINGS: dict[str, Callable[[Any], Any]] = {
     "max_frames": _integer(0),
     "patience": _integer(1),
     "val_fraction": _fraction,
+    # the recipe options (docs/policy.md, "Memory, target head and modality dropout")
+    "memory": _one_of(MEMORIES),
+    "aux_weight": _non_negative,
+    "modality_dropout": _share,
+    "seq_len": _integer(1),
+    "lanes": _integer(1),
 }
 # keys that belong to the command line: how points run, not what they learn
 COMMAND_LINE = {"threads": "--threads", "device": "--device", "workers": "--workers",

@@ -32,8 +32,8 @@ from .checkpoint import model_config, save_checkpoint
 from .checkpoint_schema import FUSION_STEMS, check_stem  # noqa: F401
 from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, available_memory,
                       content_digest, dataset_hash, emulator_of, event_frames_of,
-                      load_index, split_episodes)
-from .inputs import Modality, Normalisation
+                      load_datasets, load_index, split_episodes)
+from .inputs import Modality, Normalisation, event_clip_for
 from .resume import (NonFiniteState, first_non_finite, fingerprint, load_state, resume_path,
                      save_state)
 from .subnormal import ZeroSubnormals
@@ -62,7 +62,20 @@ class TrainSettings:
     # zero the weights' and Adam's subnormal floats after every step (subnormal.py), which
     # a CPU computes with through a slow path; it changes the weights, so a recipe names it
     zero_subnormals: bool = False
+    # the recipe options of issue 65, item 2 (docs/policy.md, "Memory, target head,
+    # modality dropout"); any of them trains on sequences (sequence.py) instead of
+    # shuffled frames. memory: "none" | "gru" (a recurrent state across ticks)
+    memory: str = "none"
+    aux_weight: float = 0.0       # > 0: the target head, its loss weighted so
+    modality_dropout: float = 0.0  # fused modalities: the share of lane batches losing a stream
+    seq_len: int = 8              # ticks per batch a lane backpropagates through
+    lanes: int = 8                # episodes played side by side (the batch's B)
     norm: Normalisation = field(default_factory=Normalisation)
+
+    @property
+    def on_sequences(self) -> bool:
+        """Whether these settings train on lanes of ticks (any recipe option is on)."""
+        return self.memory != "none" or self.aux_weight > 0 or self.modality_dropout > 0
 
 
 def paper_settings(task: str) -> TrainSettings:
@@ -166,12 +179,14 @@ def loader_workers(device: str, cpus: int | None = None) -> int:
     return 0 if device == "cpu" else max(0, min(8, cpus - 1))
 
 
-def train_variant(data: str | Path, out: str | Path, modality: Modality | str,
-                  s: TrainSettings, progress: bool = True, log=print) -> dict:
+def train_variant(data: str | Path | list[str | Path], out: str | Path,
+                  modality: Modality | str, s: TrainSettings, progress: bool = True,
+                  log=print) -> dict:
     """Train one modality; writes its checkpoint, config and loss CSV.
 
     Parameters:
-        data: the dataset directory; out: where the outputs go.
+        data: the dataset directory, or several (trained together, `load_training_data`);
+            out: where the outputs go.
         modality: the modality, or its name; s: the settings (the recording decides the
             event bins, see `load_training_data`).
         progress: tqdm bars; log: takes each line (the epochs, the resume, the cache).
@@ -182,7 +197,7 @@ def train_variant(data: str | Path, out: str | Path, modality: Modality | str,
     modality = Modality.parse(modality)
     check_stem(s.stem, modality)
     out = Path(out)
-    td = load_training_data(Path(data), modality, s, progress, log)
+    td = load_training_data(data, modality, s, progress, log)
     try:
         with deterministic_torch(td.settings):
             fitted = fit(td, out, progress, log)
@@ -194,7 +209,7 @@ def train_variant(data: str | Path, out: str | Path, modality: Modality | str,
 @dataclass
 class TrainingData:
     """What one variant trains on (`load_training_data`)."""
-    root: Path                    # the dataset directory
+    root: Path                    # the dataset directory (of several: the first)
     modality: Modality
     settings: TrainSettings       # the settings asked for, the recording's event bins in
     episodes: list[dict]          # every episode of the index
@@ -204,41 +219,62 @@ class TrainingData:
     val_set: EpisodeFrames
     event_frames: dict | None     # dataset.event_frames_of: modalities with events only
     emulator: dict | None         # dataset.emulator_of: modalities with events only
+    # every dataset, in the order given; the entries of several carry their own ("root")
+    roots: list[Path] = field(default_factory=list)
 
     def close(self) -> None:
         self.train_set.close()
         self.val_set.close()
 
 
-def load_training_data(data: Path, modality: Modality, s: TrainSettings,
-                       progress: bool = True, log=print) -> TrainingData:
-    """The data step: the dataset's episodes, what its event frames and emulator are
+def dataset_roots(data: str | Path | list[str | Path]) -> list[Path]:
+    """The dataset directories a training reads: one, or several in the order given."""
+    roots = [Path(d) for d in data] if isinstance(data, (list, tuple)) else [Path(data)]
+    if not roots:
+        raise ValueError("no dataset given")
+    return roots
+
+
+def load_training_data(data: str | Path | list[str | Path], modality: Modality,
+                       s: TrainSettings, progress: bool = True, log=print) -> TrainingData:
+    """The data step: the datasets' episodes, what their event frames and emulator are
     (modalities with events), the seeded split by episode, and a reader of each side,
     its frames read into memory first when the cache says so (`_use_cache`).
 
+    Several datasets train together (dataset.load_datasets): their episodes, the first
+    dataset's first, are split as one list (by episode, seeded as for one dataset), each
+    entry read from its own dataset. Datasets of different tasks, event frames or emulator
+    preset versions are refused in one line naming both.
+
     Parameters:
-        data: the dataset directory; modality, s: the variant and its settings.
+        data: the dataset directory, or several; modality, s: the variant and its settings.
         progress: tqdm bars for the preload; log: takes the cache's line.
 
     Returns:
         The TrainingData; its settings' event_bins are the recording's.
     """
-    episodes = load_index(data, s.task)
+    roots = dataset_roots(data)
+    root = roots[0]
+    # one dataset's entries stay as its index lists them (its digest and records as before)
+    episodes = load_index(root, s.task) if len(roots) == 1 else load_datasets(roots, s.task)
     event_frames = emulator = None
     if modality.has_events:
         # the recording decides the event input (counts or K time bins); the model follows
-        event_frames = event_frames_of(data, episodes)
-        emulator = emulator_of(data, episodes)
-        s = replace(s, norm=replace(s.norm, event_bins=event_frames["bins"]))
+        event_frames = event_frames_of(root, episodes)
+        emulator = emulator_of(root, episodes)
+        # a time surface reaches the model as value / 255, not clipped as counts are
+        s = replace(s, norm=replace(s.norm, event_bins=event_frames["bins"],
+                                    event_clip=event_clip_for(event_frames["representation"],
+                                                              s.norm.event_clip)))
     train_eps, val_eps = split_episodes(episodes, s.val_fraction, s.seed)
-    train_set = EpisodeFrames(data, train_eps, s.task, modality, s.norm, s.max_frames)
+    train_set = EpisodeFrames(root, train_eps, s.task, modality, s.norm, s.max_frames)
     val_cap = max(1, s.max_frames // 4) if s.max_frames else 0
-    val_set = EpisodeFrames(data, val_eps, s.task, modality, s.norm, val_cap)
+    val_set = EpisodeFrames(root, val_eps, s.task, modality, s.norm, val_cap)
     if _use_cache(s.cache, train_set, val_set, log):
         held = train_set.preload(progress) + val_set.preload(progress)
         log(f"  frames in memory: {held / 2**20:,.0f} MiB")
-    return TrainingData(data, modality, s, episodes, train_eps, val_eps, train_set, val_set,
-                        event_frames, emulator)
+    return TrainingData(root, modality, s, episodes, train_eps, val_eps, train_set, val_set,
+                        event_frames, emulator, roots)
 
 
 @contextlib.contextmanager
@@ -281,6 +317,10 @@ class Fitting:
     train_loader: object
     val_loader: object
     target_stats: dict | None     # the arm pose's standardisation (pose_stats)
+    # one pass over a loader: _epoch (shuffled frames), or sequence_epoch with the
+    # recipe's options bound (sequence.py)
+    epoch_fn: object = None
+    epoch_stats: dict = field(default_factory=dict)   # what the last pass reported
 
 
 @dataclass
@@ -354,7 +394,9 @@ def _start_fitting(td: TrainingData) -> Fitting:
 
     from .model import ERP
     s = td.settings
-    model = ERP(s.task, td.modality.channels(s.norm.event_bins), s.norm.size, stem=s.stem)
+    check_recipe(s, td.modality)
+    model = ERP(s.task, td.modality.channels(s.norm.event_bins), s.norm.size, stem=s.stem,
+                memory=s.memory, aux=s.aux_weight > 0)
     target_stats = None
     if s.task == "arm":
         target_stats = pose_stats(td.train_set.targets())
@@ -369,10 +411,15 @@ def _start_fitting(td: TrainingData) -> Fitting:
     # Workers start afresh every epoch: a persistent loader draws its base seed from
     # the shuffle's generator once, where one without workers draws it every epoch,
     # and the second epoch's order would then depend on the worker count.
-    train_loader = DataLoader(td.train_set, batch_size=s.batch, **order,
-                              num_workers=s.num_workers, collate_fn=_collate)
-    val_loader = DataLoader(td.val_set, batch_size=s.batch, shuffle=False,
-                            num_workers=s.num_workers, collate_fn=_collate)
+    stats: dict = {}
+    if s.on_sequences:
+        train_loader, val_loader, epoch_fn = _sequence_loaders(td, gen, stats)
+    else:
+        train_loader = DataLoader(td.train_set, batch_size=s.batch, **order,
+                                  num_workers=s.num_workers, collate_fn=_collate)
+        val_loader = DataLoader(td.val_set, batch_size=s.batch, shuffle=False,
+                                num_workers=s.num_workers, collate_fn=_collate)
+        epoch_fn = _epoch
     optimizer = torch.optim.Adam(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
     scheduler = (torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, mode="min",
                                                             **s.plateau)
@@ -380,7 +427,44 @@ def _start_fitting(td: TrainingData) -> Fitting:
     criterion = torch.nn.MSELoss() if s.loss == "mse" else torch.nn.SmoothL1Loss()
     zeroer = ZeroSubnormals(model, optimizer) if s.zero_subnormals else None
     return Fitting(s, td.modality, f"{s.task}-{td.modality}", model, optimizer, scheduler,
-                   criterion, zeroer, gen, train_loader, val_loader, target_stats)
+                   criterion, zeroer, gen, train_loader, val_loader, target_stats,
+                   epoch_fn, stats)
+
+
+def check_recipe(s: TrainSettings, modality: Modality) -> None:
+    """ValueError, one line, for recipe options out of range or that cannot apply."""
+    from .model import MEMORIES
+    if s.memory not in MEMORIES:
+        raise ValueError(f"unknown memory {s.memory!r} ({', '.join(MEMORIES)})")
+    if not (math.isfinite(s.aux_weight) and s.aux_weight >= 0):
+        raise ValueError(f"aux_weight must be a finite number >= 0, got {s.aux_weight}")
+    if not 0 <= s.modality_dropout <= 1:
+        raise ValueError(f"modality_dropout must be in [0, 1], got {s.modality_dropout}")
+    if s.modality_dropout > 0 and len(modality.streams) < 2:
+        raise ValueError(f"modality dropout needs two streams to drop one of; modality "
+                         f"{modality} has one")
+    if s.seq_len < 1 or s.lanes < 1:
+        raise ValueError(f"seq_len and lanes must be >= 1, got {s.seq_len} and {s.lanes}")
+
+
+def _sequence_loaders(td: TrainingData, generator, stats: dict):
+    """The recipe's loaders (LaneBatches) and its epoch (sequence_epoch, the options
+    bound); the target head's truth read from the episodes when it is on."""
+    import functools
+
+    from .sequence import LaneBatches, ModalityDropout, sequence_epoch, target_truth
+    s = td.settings
+
+    def truth_of(frames):
+        if s.aux_weight <= 0:
+            return None
+        return [target_truth(frames._episode(ei).path) for ei in range(len(frames.files))]
+    train = LaneBatches(td.train_set, s.lanes, s.seq_len, generator, truth_of(td.train_set))
+    val = LaneBatches(td.val_set, s.lanes, s.seq_len, None, truth_of(td.val_set))
+    dropout = ModalityDropout(s.modality_dropout) if s.modality_dropout > 0 else None
+    epoch_fn = functools.partial(sequence_epoch, loss=s.loss, aux_weight=s.aux_weight,
+                                 dropout=dropout, generator=generator, stats=stats)
+    return train, val, epoch_fn
 
 
 def _resume(run: Fitting, state_file: Path, key: str, s: TrainSettings, log) -> FitProgress:
@@ -415,7 +499,9 @@ def _run_epoch(run: Fitting, done: FitProgress, epoch: int, progress: bool, log)
     zeroer = run.zeroer
     zeroed_before, epoch_t0 = (zeroer.total if zeroer else 0), time.monotonic()
     tr = _finite_epoch(name, "training", epoch, run.model, run.train_loader, run.criterion,
-                       run.optimizer, f"{tag} train", progress, s.device, after_step=zeroer)
+                       run.optimizer, f"{tag} train", progress, s.device, after_step=zeroer,
+                       epoch_fn=run.epoch_fn)
+    aux_train = run.epoch_stats.get("aux_loss")
     # a last step can make a weight NaN with its batch's loss still finite; a
     # buffer (BatchNorm statistics) can go with no training loss seeing it at all
     broken = first_non_finite(run.model.state_dict())
@@ -423,13 +509,15 @@ def _run_epoch(run: Fitting, done: FitProgress, epoch: int, progress: bool, log)
         raise TrainingDiverged(f"{name}: weight {broken} is not finite after epoch "
                                f"{epoch}; stopped, no checkpoint written")
     va = _finite_epoch(name, "validation", epoch, run.model, run.val_loader, run.criterion,
-                       None, f"{tag} val", progress, s.device)
+                       None, f"{tag} val", progress, s.device, epoch_fn=run.epoch_fn)
     # the name, not the Modality: the rows go into the resume state, which torch reads
     # back with weights_only (plain values only)
     done.rows.append({"modality": run.modality.value, "epoch": epoch, "train_loss": tr,
                       "val_loss": va, "lr": lr})
     log(f"  epoch {epoch}: train {tr:.5f}  val {va:.5f}  lr {lr:.2e}  "
         f"{time.monotonic() - epoch_t0:,.0f} s"
+        + (f"  target head train {aux_train:.4f} val {run.epoch_stats['aux_loss']:.4f}"
+           if s.aux_weight > 0 and aux_train is not None else "")
         + (f"  subnormals zeroed {zeroer.total - zeroed_before:,}" if zeroer else ""))
     if va < done.best:
         done.best, done.bad = va, 0
@@ -476,15 +564,12 @@ def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
 
     from .model import count_parameters
     s, done = td.settings, fitted.progress
-    config = {**model_config(s.task, td.modality, s.norm, s.stem),
+    config = {**model_config(s.task, td.modality, s.norm, s.stem, s.memory, s.aux_weight > 0),
               "parameters": count_parameters(fitted.model),
               **({"target_stats": fitted.target_stats} if fitted.target_stats else {}),
               **({"event_frames": td.event_frames} if td.event_frames else {}),
               **({"emulator": td.emulator} if td.emulator else {}),
-              "dataset": {"path": str(td.root), "hash": fitted.data_hash,
-                          "train_episodes": [e["file"] for e in td.train_episodes],
-                          "val_episodes": [e["file"] for e in td.val_episodes],
-                          "train_frames": len(td.train_set), "val_frames": len(td.val_set)},
+              "dataset": dataset_record(td, fitted.data_hash),
               "training": {"lr": s.lr, "weight_decay": s.weight_decay, "loss": s.loss,
                            "batch": s.batch, "device": s.device, "epochs": s.epochs,
                            "epochs_run": len(done.rows),
@@ -492,6 +577,10 @@ def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
                            "best_val_loss": done.best, "seed": s.seed,
                            "max_frames": s.max_frames,
                            **({"zero_subnormals": True} if s.zero_subnormals else {}),
+                           **({"recipe": {"memory": s.memory, "aux_weight": s.aux_weight,
+                                          "modality_dropout": s.modality_dropout,
+                                          "seq_len": s.seq_len, "lanes": s.lanes}}
+                              if s.on_sequences else {}),
                            "seconds": round(fitted.seconds, 2),
                            **({"resumed_after_epochs": done.resumed} if done.resumed else {})},
               "torch": torch.__version__, "numpy": np.__version__}
@@ -501,12 +590,12 @@ def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
     return config
 
 
-def _finite_epoch(name: str, kind: str, epoch: int, *args, **kwargs) -> float:
-    """`_epoch`, its mean loss checked too: TrainingDiverged, in one line, naming the
-    variant, the pass ("training" or "validation"), the epoch and the batch, when a loss
-    is not finite."""
+def _finite_epoch(name: str, kind: str, epoch: int, *args, epoch_fn=None, **kwargs) -> float:
+    """`_epoch` (or ``epoch_fn``, the same signature), its mean loss checked too:
+    TrainingDiverged, in one line, naming the variant, the pass ("training" or
+    "validation"), the epoch and the batch, when a loss is not finite."""
     try:
-        mean = _epoch(*args, **kwargs)
+        mean = (epoch_fn or _epoch)(*args, **kwargs)
     except NonFiniteLoss as exc:
         raise TrainingDiverged(f"{name}: {kind} loss is {exc.value} at epoch {epoch}, batch "
                                f"{exc.batch}; stopped, no checkpoint written") from None
@@ -576,17 +665,51 @@ def plot_losses(out: str | Path, task: str) -> Path | None:
     return path
 
 
+def dataset_record(td: TrainingData, data_hash: str) -> dict:
+    """The config's "dataset" record: "path" (the first dataset), "hash" (of all,
+    dataset.dataset_hash), "train_episodes" and "val_episodes", "train_frames",
+    "val_frames", and "datasets": every dataset's {"path", "hash", "episodes"}.
+
+    An episode of the first dataset is named by its file name, as a record of one dataset
+    always named them; one of another dataset by its absolute path, so that a reader
+    joining the record's path and a name (``Path(path) / name``) finds either.
+
+    Parameters:
+        td: the data step's result; data_hash: the hash of all its episodes.
+
+    Returns:
+        The record.
+    """
+    roots = td.roots or [td.root]
+
+    def name(e: dict) -> str:
+        own = Path(e.get("root", td.root))
+        return e["file"] if own == td.root else str((own / e["file"]).resolve())
+    datasets = []
+    for r in roots:
+        mine = [e for e in td.episodes if Path(e.get("root", td.root)) == r]
+        datasets.append({"path": str(r), "hash": dataset_hash(r, mine),
+                         "episodes": len(mine)})
+    return {"path": str(td.root), "hash": data_hash,
+            "train_episodes": [name(e) for e in td.train_episodes],
+            "val_episodes": [name(e) for e in td.val_episodes],
+            "train_frames": len(td.train_set), "val_frames": len(td.val_set),
+            "datasets": datasets}
+
+
 def settings_for(task: str, **overrides) -> TrainSettings:
     """The paper's settings for ``task`` with ``overrides`` (TrainSettings fields; None
     keeps the default): what `train` trains with, and what a sweep records per point."""
     return replace(paper_settings(task), **{k: v for k, v in overrides.items() if v is not None})
 
 
-def train(data: str | Path, out: str | Path, task: str, modalities: list[Modality | str],
-          progress: bool = True, log=print, **overrides) -> dict[Modality, dict]:
+def train(data: str | Path | list[str | Path], out: str | Path, task: str,
+          modalities: list[Modality | str], progress: bool = True, log=print,
+          **overrides) -> dict[Modality, dict]:
     """Train each modality in turn with the paper's settings for ``task`` (``overrides``
     replace TrainSettings fields, e.g. epochs=2, norm=Normalisation(size=64)); returns
-    each one's config."""
+    each one's config. ``data``: a dataset directory, or a list of several that train
+    together (`load_training_data`; DAgger's rounds beside the expert's recording)."""
     s = settings_for(task, **overrides)
     modalities = [Modality.parse(m) for m in modalities]
     for m in modalities:             # refuse before the first modality trains, not after

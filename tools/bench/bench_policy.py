@@ -2,7 +2,7 @@
 
     python tools/bench/bench_policy.py [--quick] [--json FILE] [--shipped-only]
 
-JSON: {"inference": [{"modality", "size", "threads", "p50_ms", "p99_ms", ...}],
+JSON: {"inference": [{"modality", "size", "threads", "memory", "p50_ms", "p99_ms", ...}],
        "shipped":   [{"checkpoint", "graph", "warm_p50_ms", "cold_p50_ms", ...}],
        "training":  [{"size", "samples_per_s", "batch", "threads", ...}], "env": {...}}
 
@@ -10,7 +10,9 @@ Inference is what the policy actor does per tick: model.eval(), torch.inference_
 batch 1, the nav head (the arm head adds two small linear layers). Input preparation
 (inputs.py: resize + scale from a 640x640 frame) is timed separately as `prep_ms`.
 The token embeddings named by --stems are timed: the paper's patch projection, ConvStem,
-GatedFusionStem and DualStem (the last two rgb+event only: they have no other modality).
+GatedFusionStem and DualStem (the last two rgb+event only: they have no other modality),
+each without memory and with the GRU state (--memories: a recurrent model's tick is its
+step, the state carried from call to call as the policy actor carries it).
 Training is one Adam step (forward, MSE, backward, update) on random batches.
 
 `shipped` times every checkpoint in --checkpoints (default checkpoints/) as the policy
@@ -62,16 +64,20 @@ def stem_fits(stem: str, modality: str) -> bool:
 
 
 def bench_inference(modality: str, size: int, threads: int, budget_s: float,
-                    min_iter: int = 10, stem: str = "patch") -> dict:
+                    min_iter: int = 10, stem: str = "patch", memory: str = "none") -> dict:
     torch.set_num_threads(threads)
     cv2.setNumThreads(threads)     # as the policy actor does
     torch.manual_seed(0)
-    model = ERP("nav", channels(modality), size, stem=stem).eval()
+    model = ERP("nav", channels(modality), size, stem=stem, memory=memory).eval()
     x = torch.rand(1, channels(modality), size, size)
+    state = [model.initial_state()]
 
     def step():
         with torch.inference_mode():
-            model(x)
+            if model.state_size:        # as PolicySet.act: the state stepped on each tick
+                _, state[0] = model.step(x, state[0])
+            else:
+                model(x)
 
     ms = _timed(step, budget_s, min_iter=min_iter, max_iter=5000)
     rng = np.random.default_rng(0)
@@ -80,7 +86,7 @@ def bench_inference(modality: str, size: int, threads: int, budget_s: float,
     norm = Normalisation(size=size)
     prep = _timed(lambda: model_input(modality, norm, rgb=rgb, events=ev), budget_s / 4, 5, 500)
     return {"modality": modality, "size": size, "threads": threads, "stem": stem,
-            "tokens": (size // 16) ** 2,
+            "memory": memory, "tokens": (size // 16) ** 2,
             "parameters": count_parameters(model), "p50_ms": round(float(np.median(ms)), 4),
             "p90_ms": round(float(np.percentile(ms, 90)), 4),
             "p99_ms": round(float(np.percentile(ms, 99)), 4), "n": int(ms.size),
@@ -90,24 +96,27 @@ def bench_inference(modality: str, size: int, threads: int, budget_s: float,
 def bench_shipped(path: Path, graphs: list[str], calls: int, idle_s: float) -> list[dict]:
     """One checkpoint through each graph: model time only, warm and after ``idle_s`` idle."""
     from sebvs.policy.checkpoint import load_checkpoint
-    from sebvs.policy.graph import inference_graph
+    from sebvs.policy.graph import inference_graph, step_module
     torch.set_num_threads(1)
     model, cfg, _ = load_checkpoint(path)
     x = torch.rand(1, model.in_channels, model.size, model.size)
-    runs = {g: inference_graph(model, x, g) for g in graphs}
+    # a model with memory runs its step, (x, state) -> (y, state), as PolicySet does
+    args = (x, model.initial_state()) if model.state_size else (x,)
+    runnable = step_module(model) if model.state_size else model
+    runs = {g: inference_graph(runnable, args if model.state_size else x, g) for g in graphs}
     times = {g: {"warm": [], "cold": []} for g in graphs}
     with torch.inference_mode():
         for g in graphs:
             for _ in range(3):      # first calls allocate
-                runs[g][0](x)
+                runs[g][0](*args)
         for _ in range(calls):
             for g in graphs:
                 run = runs[g][0]
                 time.sleep(idle_s)
                 t0 = time.perf_counter()
-                run(x)
+                run(*args)
                 t1 = time.perf_counter()
-                run(x)
+                run(*args)
                 t2 = time.perf_counter()
                 times[g]["cold"].append((t1 - t0) * 1e3)
                 times[g]["warm"].append((t2 - t1) * 1e3)
@@ -115,6 +124,7 @@ def bench_shipped(path: Path, graphs: list[str], calls: int, idle_s: float) -> l
     for g in graphs:
         warm, cold = np.asarray(times[g]["warm"]), np.asarray(times[g]["cold"])
         out.append({"checkpoint": path.name, "stem": cfg.get("stem", "patch"),
+                    "memory": cfg.get("memory", "none"),
                     "size": model.size, "threads": 1, "graph": runs[g][1],
                     "fallback": runs[g][2], "calls": calls, "idle_s": idle_s,
                     "warm_p50_ms": round(float(np.median(warm)), 4),
@@ -154,6 +164,9 @@ def main(argv=None) -> int:
                     help="token embeddings to time: patch (the paper's), conv (ConvStem), "
                          "gated (GatedFusionStem), dual (DualStem); the last two rgb+event "
                          "only")
+    ap.add_argument("--memories", default="none,gru",
+                    help="comma list of the models' memory to time (sebvs/policy/model.py: "
+                         "none, the paper's per-tick model; gru, a state across ticks)")
     ap.add_argument("--checkpoints", default=str(Path(__file__).resolve().parents[2] /
                                                   "checkpoints"),
                     help="directory of shipped .pt checkpoints to time (default checkpoints/)")
@@ -165,6 +178,7 @@ def main(argv=None) -> int:
                     help="only the shipped checkpoints, no synthetic models or training")
     args = ap.parse_args(argv)
     stems = args.stems.split(",")
+    memories = args.memories.split(",")
     sizes = [int(s) for s in args.sizes.split(",")]
     threads = [int(t) for t in args.threads.split(",")]
     budget = 0.35 if args.quick else 2.0
@@ -183,13 +197,15 @@ def main(argv=None) -> int:
     inference = []
     for size in sizes:
         for t in threads:
-            for stem, m in itertools.product(stems, MODALITIES):
+            for stem, m, mem in itertools.product(stems, MODALITIES, memories):
                 if not stem_fits(stem, m):
                     continue
                 r = bench_inference(m, size, t, budget * (1 if size <= 320 else 1.5),
-                                    min_iter=5 if args.quick and size > 320 else 10, stem=stem)
+                                    min_iter=5 if args.quick and size > 320 else 10, stem=stem,
+                                    memory=mem)
                 inference.append(r)
-                print(f"inference {stem:>5} {m:>9} {size:>4}px {t} thr: p50 {r['p50_ms']:.3f} ms  "
+                print(f"inference {stem:>5} {mem:>4} {m:>9} {size:>4}px {t} thr: "
+                      f"p50 {r['p50_ms']:.3f} ms  "
                       f"p99 {r['p99_ms']:.3f} ms  (prep {r['prep_ms_from_640']:.3f} ms)",
                       flush=True)
     training = []

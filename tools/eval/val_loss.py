@@ -83,16 +83,23 @@ def frames_of(data: Path, episodes: list[dict], cfg: dict, norm):
 
 def mean_loss(model, frames, training: dict) -> float:
     """The model's loss per frame over ``frames``, as training's validation pass takes it
-    (same loss, batch and order, one torch thread); the frames are closed after."""
+    (same loss, batch and order, one torch thread; a recipe's lanes of ticks where its
+    record names one, sebvs/policy/sequence.py); the frames are closed after."""
     import torch
     from torch.utils.data import DataLoader
 
+    from sebvs.policy.sequence import LaneBatches, sequence_epoch
     from sebvs.policy.train import _collate, _epoch
-    loader = DataLoader(frames, batch_size=training.get("batch", 32), shuffle=False,
-                        collate_fn=_collate)
+    recipe = training.get("recipe")
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
+        if recipe:      # trained on lanes of ticks: validated on them, the state carried
+            lanes = LaneBatches(frames, recipe["lanes"], recipe["seq_len"])
+            return sequence_epoch(model, lanes, None, None, "val", False, "cpu",
+                                  loss=training.get("loss", "mse"))
+        loader = DataLoader(frames, batch_size=training.get("batch", 32), shuffle=False,
+                            collate_fn=_collate)
         return _epoch(model, loader, criterion_of(training), None, "val", False, "cpu")
     finally:
         torch.set_num_threads(threads)
