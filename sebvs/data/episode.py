@@ -226,20 +226,10 @@ class EpisodeWriter:
             self._truth.setdefault(key, {})[i] = value
         if modality is not None:
             self._modality[i] = str(modality).encode()[:16]
-        if proprio is not None:
-            proprio = np.asarray(proprio, np.float32).reshape(-1)
-            first = next(iter(self._proprio.values()), proprio)
-            if proprio.shape != first.shape:
-                raise ValueError(f"proprio must have {first.size} values every frame, got "
-                                 f"{proprio.size}")
-            self._proprio[i] = proprio
-        if drive is not None:
-            drive = np.asarray(drive, np.float32).reshape(-1)
-            first = next(iter(self._drive.values()), drive)
-            if drive.shape != first.shape:
-                raise ValueError(f"drive must have {first.size} values every frame, got "
-                                 f"{drive.size}")
-            self._drive[i] = drive
+        for name, value, rows in (("proprio", proprio, self._proprio),
+                                  ("drive", drive, self._drive)):
+            if value is not None:
+                _keep_row(name, value, rows, i)
         self.frames += 1
         return i
 
@@ -477,3 +467,14 @@ def open_episode(path: str | Path) -> Episode:
     FileNotFoundError when there is none. Whether the file is still the one its dataset's
     index recorded is sebvs/data/verify.py's to say."""
     return Episode(path)
+
+
+def _keep_row(name: str, value, rows: dict, i: int) -> None:
+    """Row ``i`` of a float32 stream of one width every frame (proprio, drive); ValueError
+    naming the stream when its width changes."""
+    value = np.asarray(value, np.float32).reshape(-1)
+    first = next(iter(rows.values()), value)
+    if value.shape != first.shape:
+        raise ValueError(f"{name} must have {first.size} values every frame, got "
+                         f"{value.size}")
+    rows[i] = value

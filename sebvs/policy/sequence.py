@@ -255,7 +255,7 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
     import torch
     from tqdm import tqdm
 
-    from .train import NonFiniteLoss
+    from .train import NonFiniteLoss, optimise
     training = optimizer is not None
     model.train(training)
     total = head_total = 0.0
@@ -275,11 +275,7 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
             action, head = sequence_losses(pred, target, aux, truth, mask, loss)
             total_loss = action if head is None else action + aux_weight * head
             if training:
-                optimizer.zero_grad(set_to_none=True)
-                total_loss.backward()
-                optimizer.step()
-                if after_step is not None:
-                    after_step()
+                optimise(total_loss, optimizer, after_step)
             state = state.detach()
             value = total_loss.item()
             if not math.isfinite(value):

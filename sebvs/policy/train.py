@@ -119,6 +119,16 @@ def _collate(batch):
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
 
 
+def optimise(loss, optimizer, after_step=None) -> None:
+    """One optimizer step on ``loss``, then ``after_step()`` if given (the subnormal
+    zeroing): what every training pass does per batch."""
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    if after_step is not None:
+        after_step()
+
+
 def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True,
            device: str = "cpu", after_step=None):
     """One pass; trains if an optimizer is given, calling ``after_step()`` (if given) after
@@ -137,11 +147,7 @@ def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: b
             x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
             loss = criterion(model.predict_loss_space(x), model.loss_space(y))
             if training:
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                optimizer.step()
-                if after_step is not None:
-                    after_step()
+                optimise(loss, optimizer, after_step)
             value = loss.item()
             if not math.isfinite(value):
                 bar.close()
