@@ -56,7 +56,10 @@ CANDIDATES = {"R0": ("counts", [], 0),
 # the DAgger round's 40 episodes of 20 s on train seed 31 (the plan fixes the round's size
 # and driver; this seed, next to the dev data's, is the driver's choice, in the log)
 DAGGER = ["--rounds", "1", "--episodes", "40", "--episode-s", "20", "--first-seed", "31",
-          "--workers", "2"]
+          "--workers", "2",
+          # the round's recording on the same noise model as the dev data (a training
+          # refuses datasets of two emulator preset versions)
+          "--set", "emulator.overrides={downsample=1.0, preset_version=2}"]
 DEV_EVAL = ["--split", "dev", "--seed", "2000", "--episodes", "10",
             "--conditions", "nominal_physical,hdr", "--set", "sim.episode_s=10",
             "--workers", "2"]
