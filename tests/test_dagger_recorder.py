@@ -111,3 +111,20 @@ def test_nav_dagger_topology_wires_the_policy_to_drive_and_the_expert_to_label()
     record = load_topology("topologies/nav_record.toml")
     for name in ("sim", "camera", "emulator", "accumulator", "expert"):
         assert topo.actors[name].params == record.actors[name].params, name
+
+
+def test_data_check_refuses_a_drive_column_of_another_width_than_the_label(tmp_path):
+    from sebvs.data.episode import EpisodeWriter
+    from sebvs.data.index import make_entry
+    index = DatasetIndex(tmp_path, "nav")
+    path = index.path_for(index.next_episode_number())
+    with EpisodeWriter(path, "nav", {"seed": 1, "scene": "synthetic"}) as w:
+        for t in range(3):
+            w.append(rgb=np.zeros((8, 8, 3), np.uint8), t_sim=t / 10, tick=t,
+                     action=np.zeros(2, np.float32), drive=np.zeros(3, np.float32))
+        w.finish("synthetic")
+    index.add(make_entry(path))
+    report = check_dataset(tmp_path)
+    assert not report.ok
+    assert any("drive is (3, 3), expected [3, 2]" in p for p in report.problems), \
+        report.problems

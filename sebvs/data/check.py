@@ -109,6 +109,13 @@ def _check_contents(name: str, ep, entry: dict, task: str | None) -> list[str]:
             **{f"truth/{k}": v for k, v in ep.truth.items()}}
     if ep.modality is not None:
         cols["modality"] = ep.modality
+    drive = getattr(ep, "drive", None)
+    if drive is not None:       # a DAgger round's: the policy command that drove each tick
+        cols["drive"] = drive
+        if drive.ndim != 2 or drive.shape[1] != ep.target.shape[-1]:
+            problems.append(f"{name}: drive is {drive.shape}, expected [{T}, "
+                            f"{ep.target.shape[-1]}] (one command per tick, as "
+                            f"{ep.target_key})")
     if ep.proprio is not None:
         cols["proprio"] = ep.proprio
         names = ep.proprio_names
