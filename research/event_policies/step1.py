@@ -99,7 +99,22 @@ def steps() -> list[dict]:
             "eval", "--task", "nav", "--modalities", ",".join(MODALITIES),
             "--checkpoints", str(OUT / rid / "checkpoints"), "--no-expert", "--no-baseline",
             "--out", str(ev), *DEV_EVAL], "done": ev / "results.json"})
-    return out
+    # the cheapest complete readings first: the candidates on the counts data without
+    # DAgger (recording, trainings, evaluations), then the time surface's, then DAgger's
+    return sorted(out, key=_phase)
+
+
+def _phase(step: dict) -> int:
+    """0: the counts data and its candidates without DAgger, with the reference row;
+    1: the time-surface data and its candidates; 2: candidates with DAgger rounds."""
+    name = step["name"]
+    if name.startswith("record_"):
+        return 0 if name == "record_counts" else 1
+    rid = name.split("_")[1]
+    if rid not in CANDIDATES:
+        return 0
+    kind, _, rounds = CANDIDATES[rid]
+    return 2 if rounds else (1 if kind != "counts" else 0)
 
 
 def is_done(step: dict) -> bool:
