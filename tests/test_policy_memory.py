@@ -14,7 +14,7 @@ from sebvs.policy.graph import inference_graph, step_module
 from sebvs.policy.infer import PolicySet
 from sebvs.policy.inputs import Modality, Normalisation, channels
 from sebvs.policy.model import ERP
-from sebvs.policy.sequence import LaneBatches, ModalityDropout, target_truth
+from sebvs.policy.sequence import WindowBatches, ModalityDropout, target_truth
 from sebvs.policy.train import TrainSettings, check_recipe, train
 from sebvs_actors.policy import Policy
 from tests.policy_data import make_dataset
@@ -86,7 +86,7 @@ def test_memory_learns_what_a_memoryless_policy_cannot(remember_data, tmp_path):
         assert cfg["memory"] == memory and cfg["aux"] is True
         assert cfg["training"]["recipe"] == {"memory": memory, "aux_weight": 0.1,
                                              "modality_dropout": 0.0, "seq_len": 12,
-                                             "lanes": 8}
+                                             "lanes": 8, "burn_in": 8}
     assert losses["gru"] < 0.2 * losses["none"], losses
 
 
@@ -126,35 +126,46 @@ def test_a_config_without_the_new_fields_is_the_papers_model(tmp_path):
     assert model.memory == "none" and not model.aux and model.state_size == 0
 
 
-def test_lanes_play_every_tick_once_in_episode_order(tmp_path):
+def test_windows_hold_every_tick_once_each_with_the_ticks_before_it_as_burn_in(tmp_path):
     data = make_dataset(tmp_path, episodes=5, frames=7, height=16, width=16)
     frames = EpisodeFrames(data, load_index(data, "nav"), "nav", "event",
                            Normalisation(size=16))
+    plain = WindowBatches(frames, lanes=2, length=3, burn_in=2)
+    batches = list(plain)
+    assert len(batches) == len(plain) == 8            # 5 episodes x 3 windows, 2 a batch
+    burn, burn_valid, x, y, truth, mask = batches[0]
+    assert burn.shape == (2, 2, 2, 16, 16) and x.shape == (2, 3, 2, 16, 16)
+    assert y.shape == (2, 3, 2) and truth.shape == (2, 3, 3)
+    # in index order: episode 0's windows at ticks 0 and 3; the second's burn-in is 1, 2
+    assert not burn_valid[0].any() and burn_valid[1].all()
+    for t in range(3):
+        np.testing.assert_array_equal(x[0, t].numpy(), frames[t][0])
+        np.testing.assert_array_equal(x[1, t].numpy(), frames[3 + t][0])
+    for t in range(2):
+        np.testing.assert_array_equal(burn[1, t].numpy(), frames[1 + t][0])
+    # the episode's last window: one tick and padding; its burn-in the two before it
+    last = batches[1]
+    assert last[5][0].tolist() == [True, False, False] and last[1][0].all()
+    assert sum(int(b[5].sum()) for b in batches) == 35    # every tick once
+    # shuffled, seeded: every tick still once, and the same seed the same batches
     gen = torch.Generator().manual_seed(0)
-    batches = LaneBatches(frames, lanes=2, length=3, generator=gen)
-    seen, epochs = [], []
-    for epoch in range(2):
-        played = []
-        for x, y, truth, mask, reset in batches:
-            assert x.shape[:2] == (2, 3) and y.shape == (2, 3, 2) and truth.shape == (2, 3, 3)
-            played.append((x.clone(), mask.clone(), reset.clone()))
-        epochs.append(played)
-        # every tick once: 35 valid ticks, each frame once
-        assert sum(int(m.sum()) for _, m, _ in played) == 35
-        seen.append(len(played))
-    assert seen[0] <= len(batches) + 1
-    # a lane starts each episode with a reset, at its first tick only
-    for _, mask, reset in epochs[0]:
-        assert not (reset[:, 1:]).any()
-    # the same generator seed gives the same epochs
-    again = LaneBatches(frames, lanes=2, length=3, generator=torch.Generator().manual_seed(0))
-    first = next(iter(again))
-    torch.testing.assert_close(first[0], epochs[0][0][0])
-    # without a generator the episodes play in index order: lane 0 starts with episode 0
-    plain = LaneBatches(frames, lanes=2, length=3)
-    x, *_ = next(iter(plain))
-    np.testing.assert_array_equal(x[0, 0].numpy(), frames[0][0])
-    assert len(plain) == sum(1 for _ in plain)
+    shuffled = list(WindowBatches(frames, lanes=2, length=3, generator=gen, burn_in=2))
+    assert sum(int(b[5].sum()) for b in shuffled) == 35
+    again = next(iter(WindowBatches(frames, lanes=2, length=3, burn_in=2,
+                                  generator=torch.Generator().manual_seed(0))))
+    torch.testing.assert_close(again[2], shuffled[0][2])
+    assert not all(torch.equal(a[2], b[2]) for a, b in zip(shuffled, batches))
+
+
+def test_padding_leaves_the_state_as_it_was():
+    torch.manual_seed(0)
+    model = ERP("nav", 2, 32, memory="gru").eval()
+    x = torch.rand(2, 4, 2, 32, 32)
+    valid = torch.tensor([[False, False, True, True], [True, True, True, True]])
+    with torch.no_grad():
+        _, _, padded = model.sequence(x, model.initial_state(2), valid=valid)
+        _, _, tail = model.sequence(x[:1, 2:], model.initial_state(1))
+    torch.testing.assert_close(padded[:1], tail, atol=1e-6, rtol=0)
 
 
 def test_modality_dropout_takes_one_stream_of_a_lane():
@@ -175,7 +186,8 @@ def test_modality_dropout_takes_one_stream_of_a_lane():
     ({"memory": "lstm"}, "unknown memory 'lstm'"),
     ({"aux_weight": float("nan")}, "aux_weight must be a finite number"),
     ({"modality_dropout": 0.3}, "modality dropout needs two streams"),
-    ({"seq_len": 0}, "seq_len and lanes must be >= 1")])
+    ({"seq_len": 0}, "seq_len and lanes must be >= 1"),
+    ({"burn_in": -1}, "burn_in >= 0")])
 def test_recipe_options_out_of_place_are_refused(changes, match):
     s = TrainSettings("nav", lr=1e-3, weight_decay=0.0, loss="mse", **changes)
     with pytest.raises(ValueError, match=match):
@@ -298,4 +310,16 @@ def test_a_sweep_takes_the_recipe_options_as_settings():
     assert train_overrides(point, 1, "cpu")["memory"] == "gru"
     resolved = resolved_settings("nav", point)
     assert (resolved["memory"], resolved["aux_weight"], resolved["seq_len"],
-            resolved["lanes"]) == ("gru", 0.5, 4, 8)
+            resolved["lanes"], resolved["burn_in"]) == ("gru", 0.5, 4, 4, 8)
+
+
+def test_the_burn_in_carries_what_a_window_cannot_see(remember_data, tmp_path):
+    """Windows of 4 ticks: after the first, none shows the square; the 8 ticks of burn-in
+    before a window hold it, and the state they leave is all the window can go on."""
+    losses = {}
+    for burn_in in (0, 8):
+        cfg = train(remember_data, tmp_path / str(burn_in), "nav", ["event"], epochs=30,
+                    lr=3e-3, patience=100, norm=Normalisation(size=16), memory="gru",
+                    aux_weight=0.1, seq_len=4, lanes=8, burn_in=burn_in, **QUIET)["event"]
+        losses[burn_in] = cfg["training"]["best_val_loss"]
+    assert losses[8] < 0.2 * losses[0], losses

@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "research" / "event_policies" / "outputs" / "step1"
 SEBVS = str(ROOT / ".venv" / "bin" / "sebvs")
 MODALITIES = ("event", "rgb+event")
+ONLY: set[str] = set()      # --only: the steps to run (empty: all)
 
 # the plan's dev data: nav topology seed 30, 60 episodes of 20 s, half under hard conditions,
 # the emulator's current noise (preset_version 2)
@@ -44,7 +45,9 @@ DATASETS = {"counts": ("datasets/ev_dev_counts", []),
 # the shipped recipe (checkpoints/README.md): conv stem, Adam 5e-4, 10 epochs, patience 3
 BASE = ["--stem", "conv", "--lr", "5e-4", "--patience", "3", "--threads", "1", "--seed", "0",
         "--no-progress"]
-MEMORY = ["--memory", "gru", "--seq-len", "8", "--lanes", "8"]
+# windows of 8 ticks, 4 a batch (the 32 frames of the recipe's batch), a burn-in of 8:
+# the plan's amendment of 2026-12-02 08:00 (the sampler it first named did not train)
+MEMORY = ["--memory", "gru", "--seq-len", "8", "--lanes", "4", "--burn-in", "8"]
 TARGET = ["--aux-weight", "0.5"]
 FUSED_DROPOUT = ["--modality-dropout", "0.25"]
 # id -> (dataset, options, DAgger rounds)
@@ -157,7 +160,7 @@ def finish(proc: subprocess.Popen) -> int:
 
 
 def run(parallel: int = 2) -> int:
-    todo = [s for s in steps() if not is_done(s)]
+    todo = [s for s in steps() if not is_done(s) and (not ONLY or s["name"] in ONLY)]
     running: list[subprocess.Popen] = []
     for step in todo:
         if not step.get("parallel"):
@@ -216,7 +219,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=["plan", "run", "select"])
     ap.add_argument("--parallel", type=int, default=2, help="trainings at once (default 2)")
+    ap.add_argument("--only", default="", metavar="STEP,...",
+                    help="run only these steps (names as `plan` prints them)")
     args = ap.parse_args(argv)
+    global ONLY
+    ONLY = {n for n in args.only.split(",") if n}
     if args.what == "plan":
         for s in steps():
             print(("done  " if is_done(s) else "todo  ") + s["name"] + ": sebvs "

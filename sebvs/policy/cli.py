@@ -81,17 +81,18 @@ def train_overrides(args, workers: int | str) -> dict:
 def recipe_settings(args) -> dict:
     """The recipe options of `sebvs train` (memory, target head, modality dropout,
     sequences) as TrainSettings fields; an option not given keeps its default."""
-    names = ("memory", "aux_weight", "modality_dropout", "seq_len", "lanes")
+    names = ("memory", "aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")
     return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
 
 
 def _add_recipe_options(t) -> None:
     """The recipe options (issue 65, item 2; docs/policy.md, "Memory, target head and
-    modality dropout"). Any of them trains on lanes of consecutive ticks."""
+    modality dropout"). Any of them trains on windows of consecutive ticks."""
     g = t.add_argument_group(
         "recipe options", "off by default (the paper's per-tick behaviour cloning); any of "
-        "them trains on B lanes of L consecutive ticks, the state carried from batch to "
-        "batch (truncated backpropagation through time)")
+        "them trains on batches of B windows of L consecutive ticks, shuffled across "
+        "episodes, each window's state set by the W ticks before it (a burn-in without "
+        "gradient: truncated backpropagation through time)")
     g.add_argument("--memory", choices=["none", "gru"], default=None,
                    help="a recurrent state across control ticks: gru (a GRU cell over the "
                         "encoded class token); the policy actor resets it per episode and at "
@@ -105,9 +106,13 @@ def _add_recipe_options(t) -> None:
                         "planes (one, as likely) are zeroed, so that neither stream can be "
                         "ignored (default 0)")
     g.add_argument("--seq-len", type=int, default=None, metavar="L",
-                   help="ticks per batch a lane backpropagates through (default 8)")
+                   help="ticks per window, backpropagated through (default 8)")
     g.add_argument("--lanes", type=int, default=None, metavar="B",
-                   help="episodes played side by side: the batch's lanes (default 8)")
+                   help="windows per batch (default 4: 4 x 8 ticks, the 32 frames of the "
+                        "paper's batch)")
+    g.add_argument("--burn-in", type=int, default=None, metavar="W",
+                   help="ticks before each window, run without gradient, that set its "
+                        "state (default 8; 0: every window starts from the initial state)")
 
 
 def check_train_outputs(out, data, task: str, modalities: list[str], force: bool) -> None:
@@ -269,7 +274,7 @@ def _register_train_sweep(subparsers) -> None:
   lr = [2e-4, 5e-4]
 
 settings: modality, seed, lr, stem, epochs, batch, size, event_clip, max_frames,
-memory, aux_weight, modality_dropout, seq_len, lanes (the recipe options),
+memory, aux_weight, modality_dropout, seq_len, lanes, burn_in (the recipe options),
 patience, val_fraction (sebvs train's options; one not given keeps its default).
 A point's directory is named by its modality, seed and other axes, e.g.
 modality=event__seed=1__lr=0.0005. A rerun into the same OUT skips points whose

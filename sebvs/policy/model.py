@@ -389,14 +389,16 @@ class ERP(nn.Module):
             token, state = self.recurrent(token, state)
         return self.head(token), state
 
-    def sequence(self, x: torch.Tensor, state: torch.Tensor, reset: torch.Tensor | None = None
+    def sequence(self, x: torch.Tensor, state: torch.Tensor, reset: torch.Tensor | None = None,
+                 valid: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
-        """L ticks of B lanes, for training: (x [B, L, C, S, S], state [B, state_size],
-        reset [B, L] bool or None: the state restarts from zeros before those ticks) ->
-        (prediction in the loss space [B, L, 2 | 7], TargetHead output [B, L, 3] or None,
-        the state after the last tick [B, state_size]).
+        """L ticks of B sequences, for training: (x [B, L, C, S, S], state [B, state_size],
+        reset [B, L] bool or None: the state restarts from zeros before those ticks,
+        valid [B, L] bool or None: False at padding, whose ticks leave the state as it
+        was) -> (prediction in the loss space [B, L, 2 | 7], TargetHead output [B, L, 3] or
+        None, the state after the last tick [B, state_size]).
 
-        The L frames of every lane go through the encoder as one batch of B * L; only
+        The L frames of every sequence go through the encoder as one batch of B * L; only
         the GRU runs tick by tick."""
         b, n = x.shape[:2]
         tokens = self._class_token(x.reshape(b * n, *x.shape[2:])).reshape(b, n, -1)
@@ -405,7 +407,9 @@ class ERP(nn.Module):
             for t in range(n):
                 if reset is not None:
                     state = state * (~reset[:, t])[:, None].to(state.dtype)
-                f, state = self.recurrent(tokens[:, t], state)
+                f, stepped = self.recurrent(tokens[:, t], state)
+                state = stepped if valid is None else \
+                    torch.where(valid[:, t, None], stepped, state)
                 feats.append(f)
             tokens = torch.stack(feats, dim=1)
         flat = tokens.reshape(b * n, -1)

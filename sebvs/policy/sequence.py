@@ -1,21 +1,20 @@
-"""Training on sequences: lanes of consecutive ticks, the state carried across batches.
+"""Training on sequences: shuffled windows of consecutive ticks, each with a burn-in.
 
     truth = [target_truth(path) for path in episode_paths]         # [T, 3] each
-    batches = LaneBatches(frames, lanes=8, length=8, generator=gen, truth=truth)
-    for x, y, target, mask, reset in batches:   # x [B, L, C, S, S], y [B, L, 2 | 6], ...
-        pred, aux, state = model.sequence(x, state, reset)
+    batches = WindowBatches(frames, lanes=4, length=8, generator=gen, truth=truth, burn_in=8)
+    for burn, burn_valid, x, y, truth, mask in batches:    # x [B, L, C, S, S], ...
+        _, _, state = model.sequence(burn, state0, valid=burn_valid)      # no gradient
+        pred, aux, _ = model.sequence(x, state.detach())
 
 What the recipe options of issue 65, item 2 train with (a model with memory, the target
 head, modality dropout); the paper's recipe keeps its shuffled frames (train.py `_epoch`).
 
-Truncated backpropagation through time, with the state carried: each of B lanes plays its
-share of the episodes in order, L ticks per batch. A batch's loss backpropagates through
-its L ticks; the state it ends with starts the lane's next batch, detached, so a lane's
-GRU has seen its episode from the first tick, as the policy actor's does in closed loop.
-A lane starts a new episode with the state reset (``reset`` [B, L] marks the tick), and
-a lane whose episode ends inside a batch is padded there (``mask`` False, no loss). The
-episodes are shuffled into lanes every epoch (seeded), each to the lane with the fewest
-ticks so far, so the lanes end together.
+Truncated backpropagation through time with a burn-in: each episode is cut into windows of
+L ticks, the windows of all episodes shuffled into batches of B. A window's state starts
+from what the W ticks before it in its episode leave (run forward without gradient), the
+loss backpropagates through its L ticks. The first window of an episode starts from the
+initial state, as the actor's first tick does; the padding of a short window or burn-in
+carries no loss and does not move the state.
 """
 from __future__ import annotations
 
@@ -66,118 +65,93 @@ def target_truth(path: str | Path) -> np.ndarray:
     return out
 
 
-@dataclass
-class _Lane:
-    """One lane's episodes for an epoch and where it is in them."""
-    queue: list[np.ndarray]          # item indices of each episode still to play
-    ticks: int = 0                   # ticks assigned (for balancing)
-    current: np.ndarray | None = None
-    at: int = 0
+class WindowBatches:
+    """An epoch of sequence batches over a dataset of frames (an EpisodeFrames): every
+    episode cut into windows of L consecutive ticks, the windows shuffled across episodes
+    (seeded), B of them a batch, each with the W ticks before it as its burn-in.
 
+    Each item is (burn float32 [B, W, C, S, S], burn_valid bool [B, W], x float32
+    [B, L, C, S, S], y float32 [B, L, 2 | 6], truth float32 [B, L, 3] (zeros where no truth
+    is given), mask bool [B, L] (False: padding)), as torch tensors. A window's burn-in is
+    the W ticks of its episode before it, left-padded (burn_valid False) where the episode
+    has fewer: the first window of an episode starts from the initial state, as the
+    actor's first tick does. Every tick is in exactly one window per epoch.
 
-class LaneBatches:
-    """An epoch of sequence batches over a dataset of frames (an EpisodeFrames).
-
-    Each item is (x float32 [B, L, C, S, S], y float32 [B, L, 2 | 6], truth float32
-    [B, L, 3] (zeros where no truth is given), mask bool [B, L] (False: padding),
-    reset bool [B, L] (True: the lane's state starts afresh before this tick)), as torch
-    tensors.
+    Why shuffled windows and not lanes that play their episodes through: lanes that march
+    through 200-tick episodes in step feed the optimizer the same few episodes' next ticks
+    batch after batch, a stream far from independent draws, and on the nav dev data their
+    training loss stayed at a constant command's (0.033) for 7-10 epochs with or without
+    the GRU, where shuffled frames fell to 0.014-0.028 (research/event_policies/log.md).
+    Windows drawn across all episodes give every batch B independent places; the burn-in
+    (R2D2's, Kapturowski et al. 2019) gives each window the state its episode's ticks before
+    it would have left, without backpropagating through them.
 
     Args:
         frames: an EpisodeFrames; its items run in episode order, tick by tick.
-        lanes: B; length: L, the ticks backpropagated through per batch.
-        generator: a torch.Generator to shuffle the episodes into lanes each epoch; None
-            keeps the index order (validation).
+        lanes: B, windows per batch; length: L, the ticks backpropagated through.
+        generator: a torch.Generator to shuffle the windows each epoch; None keeps them
+            in index order (validation).
         truth: per episode of ``frames`` (its position), float32 [T, 3] from
             `target_truth`, or None.
+        burn_in: W, the ticks before a window that set its initial state (0: none).
     """
 
     def __init__(self, frames, lanes: int, length: int, generator=None,
-                 truth: list[np.ndarray] | None = None):
-        if lanes < 1 or length < 1:
-            raise ValueError(f"lanes and length must be >= 1, got {lanes} and {length}")
-        self.frames, self.lanes, self.length = frames, lanes, length
+                 truth: list[np.ndarray] | None = None, burn_in: int = 0):
+        if lanes < 1 or length < 1 or burn_in < 0:
+            raise ValueError(f"lanes and length must be >= 1 and burn_in >= 0, got {lanes}, "
+                             f"{length} and {burn_in}")
+        self.frames, self.lanes, self.length, self.burn_in = frames, lanes, length, burn_in
         self.generator, self.truth = generator, truth
         ep = frames.pairs[:, 0]
         order = np.argsort(ep, kind="stable")
         starts = np.flatnonzero(np.r_[True, ep[order][1:] != ep[order][:-1]])
-        self.episodes = np.split(order, starts[1:]) if len(order) else []
+        episodes = np.split(order, starts[1:]) if len(order) else []
+        # (episode items, window start) of every window, in index order
+        self.windows = [(items, s) for items in episodes for s in range(0, len(items), length)]
 
     def __len__(self) -> int:
-        """Batches in an epoch: exact without shuffling; with it, the balanced share
-        (the greedy assignment may need one more)."""
-        chunks = [math.ceil(len(e) / self.length) for e in self.episodes]
-        if self.generator is None:
-            return max((lane.ticks for lane in self._assign(range(len(chunks)))), default=0)
-        return math.ceil(sum(chunks) / self.lanes)
-
-    def _assign(self, order) -> list[_Lane]:
-        """Episodes (in ``order``) to lanes, each to the lane with the fewest batches so
-        far; ``ticks`` counts a lane's batches (an episode's ceil(len / L))."""
-        lanes = [_Lane([]) for _ in range(self.lanes)]
-        for e in order:
-            lane = min(lanes, key=lambda la: la.ticks)
-            lane.queue.append(self.episodes[e])
-            lane.ticks += math.ceil(len(self.episodes[e]) / self.length)
-        return lanes
+        return math.ceil(len(self.windows) / self.lanes)
 
     def __iter__(self):
         import torch
-        order = (torch.randperm(len(self.episodes), generator=self.generator).tolist()
-                 if self.generator is not None else range(len(self.episodes)))
-        lanes = self._assign(order)
-        for lane in lanes:
-            lane.queue.reverse()        # pop() from the end plays them in order
-        while any(lane.queue or lane.current is not None for lane in lanes):
-            yield self._batch(lanes, torch)
+        order = (torch.randperm(len(self.windows), generator=self.generator).tolist()
+                 if self.generator is not None else list(range(len(self.windows))))
+        for first in range(0, len(order), self.lanes):
+            yield self._batch([self.windows[k] for k in order[first:first + self.lanes]], torch)
 
-    def _batch(self, lanes: list[_Lane], torch):
-        rows = [self._lane_rows(lane) for lane in lanes]
-        b, n = len(lanes), self.length
-        x = y = None        # allocated at the first item, whose shapes they take
+    def _batch(self, windows, torch):
+        b, n, w = len(windows), self.length, self.burn_in
+        x = y = burn = None        # allocated at the first item, whose shapes they take
         truth = np.zeros((b, n, TRUTH_WIDTH), np.float32)
         mask = np.zeros((b, n), bool)
-        reset = np.stack([starts for _, starts in rows])
-        for li, (index, _) in enumerate(rows):
-            for t, item in enumerate(index):
-                if item < 0:
-                    continue
+        burn_valid = np.zeros((b, w), bool)
+        for li, (items, start) in enumerate(windows):
+            for t, item in enumerate(items[start:start + n]):
                 xi, yi = self.frames[int(item)]
                 if x is None:
                     x = np.zeros((b, n, *xi.shape), np.float32)
                     y = np.zeros((b, n, *yi.shape), np.float32)
+                    burn = np.zeros((b, w, *xi.shape), np.float32)
                 x[li, t], y[li, t] = xi, yi
                 mask[li, t] = True
                 if self.truth is not None:
                     ei, tick = (int(v) for v in self.frames.pairs[item])
                     truth[li, t] = self.truth[ei][tick]
-        return tuple(torch.from_numpy(a) for a in (x, y, truth, mask, reset))
-
-    def _lane_rows(self, lane: _Lane) -> tuple[np.ndarray, np.ndarray]:
-        """The next L item indices of a lane (-1: padding) and where its state resets."""
-        index = np.full(self.length, -1, np.int64)
-        starts = np.zeros(self.length, bool)
-        if lane.current is None:
-            if not lane.queue:
-                starts[0] = True        # an idle lane: nothing carried into its padding
-                return index, starts
-            lane.current, lane.at = lane.queue.pop(), 0
-            starts[0] = True
-        take = lane.current[lane.at:lane.at + self.length]
-        index[:len(take)] = take
-        lane.at += len(take)
-        if lane.at >= len(lane.current):
-            lane.current = None         # the next batch starts the lane's next episode
-        return index, starts
+            before = items[max(0, start - w):start]
+            for t, item in enumerate(before, w - len(before)):
+                burn[li, t] = self.frames[int(item)][0]
+                burn_valid[li, t] = True
+        return tuple(torch.from_numpy(a) for a in (burn, burn_valid, x, y, truth, mask))
 
 
 @dataclass(frozen=True)
 class ModalityDropout:
     """Training-time removal of one stream of a fused input, so that neither is ignored.
 
-    With probability ``rate``, a lane's batch (its L ticks) loses one of the two streams,
-    each as likely: its RGB planes (the first ``rgb_planes``) or the rest (events, or
-    rgb+diff's difference) set to zero, what a black frame or a still scene gives. Fused
+    With probability ``rate``, a window (its L ticks and burn-in) loses one of the two
+    streams, each as likely: its RGB planes (the first ``rgb_planes``) or the rest (events,
+    or rgb+diff's difference) set to zero, what a black frame or a still scene gives. Fused
     modalities only; the caller passes it for those.
     """
     rate: float
@@ -237,11 +211,11 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
                    loss: str = "mse", aux_weight: float = 0.0,
                    dropout: ModalityDropout | None = None, generator=None,
                    stats: dict | None = None):
-    """One pass over LaneBatches; trains if an optimizer is given (train.py's `_epoch`,
+    """One pass over WindowBatches; trains if an optimizer is given (train.py's `_epoch`,
     for sequences). ``criterion`` is unused (the losses are masked: `sequence_losses`).
 
     Parameters:
-        model: an ERP; batches: LaneBatches; optimizer, desc, progress, device,
+        model: an ERP; batches: WindowBatches; optimizer, desc, progress, device,
             after_step: as `_epoch`.
         loss: the action loss's name; aux_weight: the target head's weight in the
             trained loss; dropout: a ModalityDropout (training only) or None;
@@ -260,23 +234,28 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
     model.train(training)
     total = head_total = 0.0
     n = 0
-    state = model.initial_state(batches.lanes).to(device)
     bar = tqdm(batches, desc=desc, unit="batch", leave=False, disable=not progress,
                dynamic_ncols=True)
     with torch.set_grad_enabled(training):
-        for batch, (x, y, truth, mask, reset) in enumerate(bar, 1):
+        for batch, (burn, burn_valid, x, y, truth, mask) in enumerate(bar, 1):
             if training and dropout is not None:
-                x = dropout.apply(x, generator)
-            x, y, truth, mask, reset = (a.to(device, non_blocking=True)
-                                        for a in (x, y, truth, mask, reset))
+                # the same stream dropped over a window's burn-in and its ticks
+                keep = torch.cat([burn, x], dim=1)
+                dropout.apply(keep, generator)
+                burn, x = keep[:, :burn.shape[1]], keep[:, burn.shape[1]:]
+            burn, burn_valid, x, y, truth, mask = (
+                a.to(device, non_blocking=True) for a in (burn, burn_valid, x, y, truth, mask))
             b, t = y.shape[:2]
+            state = model.initial_state(b).to(device)
+            if model.state_size and burn.shape[1]:
+                with torch.no_grad():
+                    _, _, state = model.sequence(burn, state, valid=burn_valid)
             target = model.loss_space(y.reshape(b * t, -1)).reshape(b, t, -1)
-            pred, aux, state = model.sequence(x, state, reset)
+            pred, aux, _ = model.sequence(x, state.detach(), valid=mask)
             action, head = sequence_losses(pred, target, aux, truth, mask, loss)
             total_loss = action if head is None else action + aux_weight * head
             if training:
                 optimise(total_loss, optimizer, after_step)
-            state = state.detach()
             value = total_loss.item()
             if not math.isfinite(value):
                 bar.close()

@@ -35,7 +35,7 @@ from .sweep_table import write_summary
 POINT_LOG = "train.log"
 # settings handed to `train` as they are (TrainSettings fields of the same names)
 TRAIN_KEYS = ("epochs", "batch", "seed", "max_frames", "lr", "patience", "val_fraction", "stem",
-              "memory", "aux_weight", "modality_dropout", "seq_len", "lanes")
+              "memory", "aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")
 # settings a checkpoint config records, and where: how a resumed point is checked
 RECORDED = {"modality": ("modality",), "size": ("size",), "stem": ("stem",),
             "event_clip": ("normalisation", "event_clip"), "lr": ("training", "lr"),
@@ -44,7 +44,7 @@ RECORDED = {"modality": ("modality",), "size": ("size",), "stem": ("stem",),
             "patience": ("training", "patience"), "seed": ("training", "seed"),
             "max_frames": ("training", "max_frames"), "memory": ("memory",),
             **{k: ("training", "recipe", k)
-               for k in ("aux_weight", "modality_dropout", "seq_len", "lanes")}}
+               for k in ("aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")}}
 
 
 class SweepError(ValueError):
@@ -83,7 +83,8 @@ def resolved_settings(task: str, settings: dict) -> dict:
             "plateau": s.plateau, "val_fraction": s.val_fraction, "seed": s.seed,
             "max_frames": s.max_frames, "size": s.norm.size, "event_clip": s.norm.event_clip,
             "stem": s.stem, "memory": s.memory, "aux_weight": s.aux_weight,
-            "modality_dropout": s.modality_dropout, "seq_len": s.seq_len, "lanes": s.lanes}
+            "modality_dropout": s.modality_dropout, "seq_len": s.seq_len, "lanes": s.lanes,
+            "burn_in": s.burn_in}
 
 
 # ---------------------------------------------------------------------- the worker side

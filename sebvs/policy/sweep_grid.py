@@ -121,6 +121,7 @@ SETTINGS: dict[str, Callable[[Any], Any]] = {
     "modality_dropout": _share,
     "seq_len": _integer(1),
     "lanes": _integer(1),
+    "burn_in": _integer(0),
 }
 # keys that belong to the command line: how points run, not what they learn
 COMMAND_LINE = {"threads": "--threads", "device": "--device", "workers": "--workers",

@@ -68,8 +68,9 @@ class TrainSettings:
     memory: str = "none"
     aux_weight: float = 0.0       # > 0: the target head, its loss weighted so
     modality_dropout: float = 0.0  # fused modalities: the share of lane batches losing a stream
-    seq_len: int = 8              # ticks per batch a lane backpropagates through
-    lanes: int = 8                # episodes played side by side (the batch's B)
+    seq_len: int = 8              # ticks per window, backpropagated through
+    lanes: int = 4                # windows per batch (the batch's B): 4 x 8 ticks = 32 frames
+    burn_in: int = 8              # ticks before a window that set its state, no gradient
     norm: Normalisation = field(default_factory=Normalisation)
 
     @property
@@ -449,24 +450,26 @@ def check_recipe(s: TrainSettings, modality: Modality) -> None:
     if s.modality_dropout > 0 and len(modality.streams) < 2:
         raise ValueError(f"modality dropout needs two streams to drop one of; modality "
                          f"{modality} has one")
-    if s.seq_len < 1 or s.lanes < 1:
-        raise ValueError(f"seq_len and lanes must be >= 1, got {s.seq_len} and {s.lanes}")
+    if s.seq_len < 1 or s.lanes < 1 or s.burn_in < 0:
+        raise ValueError(f"seq_len and lanes must be >= 1 and burn_in >= 0, got "
+                         f"{s.seq_len}, {s.lanes} and {s.burn_in}")
 
 
 def _sequence_loaders(td: TrainingData, generator, stats: dict):
-    """The recipe's loaders (LaneBatches) and its epoch (sequence_epoch, the options
+    """The recipe's loaders (WindowBatches) and its epoch (sequence_epoch, the options
     bound); the target head's truth read from the episodes when it is on."""
     import functools
 
-    from .sequence import LaneBatches, ModalityDropout, sequence_epoch, target_truth
+    from .sequence import WindowBatches, ModalityDropout, sequence_epoch, target_truth
     s = td.settings
 
     def truth_of(frames):
         if s.aux_weight <= 0:
             return None
         return [target_truth(frames._episode(ei).path) for ei in range(len(frames.files))]
-    train = LaneBatches(td.train_set, s.lanes, s.seq_len, generator, truth_of(td.train_set))
-    val = LaneBatches(td.val_set, s.lanes, s.seq_len, None, truth_of(td.val_set))
+    train = WindowBatches(td.train_set, s.lanes, s.seq_len, generator, truth_of(td.train_set),
+                        s.burn_in)
+    val = WindowBatches(td.val_set, s.lanes, s.seq_len, None, truth_of(td.val_set), s.burn_in)
     dropout = ModalityDropout(s.modality_dropout) if s.modality_dropout > 0 else None
     epoch_fn = functools.partial(sequence_epoch, loss=s.loss, aux_weight=s.aux_weight,
                                  dropout=dropout, generator=generator, stats=stats)
@@ -585,7 +588,8 @@ def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
                            **({"zero_subnormals": True} if s.zero_subnormals else {}),
                            **({"recipe": {"memory": s.memory, "aux_weight": s.aux_weight,
                                           "modality_dropout": s.modality_dropout,
-                                          "seq_len": s.seq_len, "lanes": s.lanes}}
+                                          "seq_len": s.seq_len, "lanes": s.lanes,
+                                          "burn_in": s.burn_in}}
                               if s.on_sequences else {}),
                            "seconds": round(fitted.seconds, 2),
                            **({"resumed_after_epochs": done.resumed} if done.resumed else {})},

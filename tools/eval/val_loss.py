@@ -83,19 +83,20 @@ def frames_of(data: Path, episodes: list[dict], cfg: dict, norm):
 
 def mean_loss(model, frames, training: dict) -> float:
     """The model's loss per frame over ``frames``, as training's validation pass takes it
-    (same loss, batch and order, one torch thread; a recipe's lanes of ticks where its
+    (same loss, batch and order, one torch thread; a recipe's windows of ticks where its
     record names one, sebvs/policy/sequence.py); the frames are closed after."""
     import torch
     from torch.utils.data import DataLoader
 
-    from sebvs.policy.sequence import LaneBatches, sequence_epoch
+    from sebvs.policy.sequence import WindowBatches, sequence_epoch
     from sebvs.policy.train import _collate, _epoch
     recipe = training.get("recipe")
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        if recipe:      # trained on lanes of ticks: validated on them, the state carried
-            lanes = LaneBatches(frames, recipe["lanes"], recipe["seq_len"])
+        if recipe:      # trained on windows of ticks: validated on them, as trained
+            lanes = WindowBatches(frames, recipe["lanes"], recipe["seq_len"],
+                                burn_in=recipe.get("burn_in", 0))
             return sequence_epoch(model, lanes, None, None, "val", False, "cpu",
                                   loss=training.get("loss", "mse"))
         loader = DataLoader(frames, batch_size=training.get("batch", 32), shuffle=False,
