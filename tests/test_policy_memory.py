@@ -86,7 +86,7 @@ def test_memory_learns_what_a_memoryless_policy_cannot(remember_data, tmp_path):
         assert cfg["memory"] == memory and cfg["aux"] is True
         assert cfg["training"]["recipe"] == {"memory": memory, "aux_weight": 0.1,
                                              "modality_dropout": 0.0, "seq_len": 12,
-                                             "lanes": 8, "burn_in": 8}
+                                             "lanes": 8, "burn_in": 6}
     assert losses["gru"] < 0.2 * losses["none"], losses
 
 
@@ -310,7 +310,7 @@ def test_a_sweep_takes_the_recipe_options_as_settings():
     assert train_overrides(point, 1, "cpu")["memory"] == "gru"
     resolved = resolved_settings("nav", point)
     assert (resolved["memory"], resolved["aux_weight"], resolved["seq_len"],
-            resolved["lanes"], resolved["burn_in"]) == ("gru", 0.5, 4, 4, 8)
+            resolved["lanes"], resolved["burn_in"]) == ("gru", 0.5, 4, 32, 6)
 
 
 def test_the_burn_in_carries_what_a_window_cannot_see(remember_data, tmp_path):

@@ -45,9 +45,9 @@ DATASETS = {"counts": ("datasets/ev_dev_counts", []),
 # the shipped recipe (checkpoints/README.md): conv stem, Adam 5e-4, 10 epochs, patience 3
 BASE = ["--stem", "conv", "--lr", "5e-4", "--patience", "3", "--threads", "1", "--seed", "0",
         "--no-progress"]
-# windows of 8 ticks, 4 a batch (the 32 frames of the recipe's batch), a burn-in of 8:
-# the plan's amendment of 2026-12-02 08:00 (the sampler it first named did not train)
-MEMORY = ["--memory", "gru", "--seq-len", "8", "--lanes", "4", "--burn-in", "8"]
+# 32 windows of 2 ticks a batch, a burn-in of 6: the plan's second amendment of
+# 2026-12-02 (the lanes it named, and 4 windows of 8, did not train)
+MEMORY = ["--memory", "gru", "--seq-len", "2", "--lanes", "32", "--burn-in", "6"]
 TARGET = ["--aux-weight", "0.5"]
 FUSED_DROPOUT = ["--modality-dropout", "0.25"]
 # id -> (dataset, options, DAgger rounds)

@@ -106,13 +106,13 @@ def _add_recipe_options(t) -> None:
                         "planes (one, as likely) are zeroed, so that neither stream can be "
                         "ignored (default 0)")
     g.add_argument("--seq-len", type=int, default=None, metavar="L",
-                   help="ticks per window, backpropagated through (default 8)")
+                   help="ticks per window, backpropagated through (default 2)")
     g.add_argument("--lanes", type=int, default=None, metavar="B",
-                   help="windows per batch (default 4: 4 x 8 ticks, the 32 frames of the "
-                        "paper's batch)")
+                   help="windows per batch (default 32: each batch 32 places of the "
+                        "episodes; 4 windows of 8 ticks did not train on nav, docs/policy.md)")
     g.add_argument("--burn-in", type=int, default=None, metavar="W",
                    help="ticks before each window, run without gradient, that set its "
-                        "state (default 8; 0: every window starts from the initial state)")
+                        "state (default 6; 0: every window starts from the initial state)")
 
 
 def check_train_outputs(out, data, task: str, modalities: list[str], force: bool) -> None:

@@ -29,8 +29,8 @@ NOT_IN_FINGERPRINT = ("num_workers", "cache")
 # settings added after resume files were written: in the fingerprint only where they differ
 # from their default, so that a file written before them still continues its training
 ADDED_SETTINGS = {"zero_subnormals": False, "memory": "none", "aux_weight": 0.0,
-                  "modality_dropout": 0.0, "seq_len": 8, "lanes": 4,
-                  "burn_in": 8}
+                  "modality_dropout": 0.0, "seq_len": 2, "lanes": 32,
+                  "burn_in": 6}
 
 
 def resume_path(out: str | Path, task: str, modality) -> Path:
