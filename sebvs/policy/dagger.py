@@ -310,21 +310,20 @@ def record_round(s: DaggerSettings, driver_dir: Path, data: Path, seed: int,
                  workers: int | None, progress: bool, log) -> float:
     """Step 1: `sebvs record --fill` of the round's episodes, driven by the checkpoint in
     ``driver_dir``; returns the wall seconds. DaggerError when the recording fails."""
+    from sebvs.runtime.overrides import set_lines
     from sebvs.shipped import shipped_path
     m = s.modality
+    round_overrides = {"topology": {"seed": seed},
+                       "policy": {"task": s.task, "directory": str(driver_dir.resolve()),
+                                  "modality": m, "modalities": [m]}}
+    if s.episode_s is not None:
+        round_overrides["sim"] = {"episode_s": float(s.episode_s)}
     cmd = [sys.executable, "-m", "sebvs.cli", "record",
            str(shipped_path(s.topology_path()).resolve()), "--episodes", str(s.episodes),
            "--out", str(data), "--fill", "--runs-dir", str(data.parent / "runs"),
            *(["--workers", str(workers)] if workers else []),
            *([] if progress else ["--quiet"]),
-           *(a for line in s.sets for a in ("--set", line)),
-           "--set", f"topology.seed={seed}",
-           "--set", f"policy.task={json.dumps(s.task)}",
-           "--set", f"policy.directory={json.dumps(str(driver_dir.resolve()))}",
-           "--set", f"policy.modality={json.dumps(m)}",
-           "--set", f"policy.modalities={json.dumps([m])}"]
-    if s.episode_s is not None:
-        cmd += ["--set", f"sim.episode_s={float(s.episode_s)!r}"]
+           *(a for line in [*s.sets, *set_lines(round_overrides)] for a in ("--set", line))]
     t0 = time.monotonic()
     done = subprocess.run(cmd, stdout=None if progress else subprocess.PIPE,
                           stderr=None if progress else subprocess.STDOUT, text=True)

@@ -229,7 +229,7 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
     import torch
     from tqdm import tqdm
 
-    from .train import NonFiniteLoss, optimise
+    from .steps import NonFiniteLoss, optimise
     training = optimizer is not None
     model.train(training)
     total = head_total = 0.0

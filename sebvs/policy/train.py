@@ -36,6 +36,7 @@ from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, availab
 from .inputs import Modality, Normalisation, event_clip_for
 from .resume import (NonFiniteState, first_non_finite, fingerprint, load_state, resume_path,
                      save_state)
+from .steps import NonFiniteLoss, optimise  # noqa: F401  (NonFiniteLoss: its home before)
 from .subnormal import ZeroSubnormals
 
 
@@ -98,14 +99,6 @@ class TrainingDiverged(ValueError):
     `sebvs train` says it in one line with exit status 2."""
 
 
-class NonFiniteLoss(ValueError):
-    """Raised by `_epoch` at the first batch (counted from 1) whose loss is not finite."""
-
-    def __init__(self, batch: int, value: float):
-        super().__init__(f"loss is {value} at batch {batch}")
-        self.batch, self.value = batch, value
-
-
 def _seed_everything(seed: int) -> None:
     import random
 
@@ -121,16 +114,6 @@ def _collate(batch):
     import torch
     xs, ys = zip(*batch)
     return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
-
-
-def optimise(loss, optimizer, after_step=None) -> None:
-    """One optimizer step on ``loss``, then ``after_step()`` if given (the subnormal
-    zeroing): what every training pass does per batch."""
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    optimizer.step()
-    if after_step is not None:
-        after_step()
 
 
 def _epoch(model, loader, criterion, optimizer=None, desc: str = "", progress: bool = True,

@@ -127,6 +127,15 @@ def leaves(overrides: Mapping, prefix: tuple[str, ...] = ()) -> Iterator[tuple[t
             yield path, value
 
 
+def set_lines(overrides: Mapping) -> list[str]:
+    """The ``--set`` lines that give a mapping's leaves, for a command run as a subprocess:
+    ``{"topology": {"seed": 31}}`` -> ["topology.seed=31"]. Values are written as JSON,
+    which the parser reads back as the same TOML values (strings, numbers, booleans, lists).
+    (Replaced tables are written as their leaves: not for `replace` values.)"""
+    import json
+    return [f"{'.'.join(path)}={json.dumps(value)}" for path, value in leaves(overrides)]
+
+
 def lookup(overrides: Mapping, *path: str, default: Any = None) -> Any:
     """The value an override mapping sets at ``path`` (through replaced tables), or
     ``default`` where it sets none."""
