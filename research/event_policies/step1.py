@@ -30,7 +30,6 @@ ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "research" / "event_policies" / "outputs" / "step1"
 SEBVS = str(ROOT / ".venv" / "bin" / "sebvs")
 MODALITIES = ("event", "rgb+event")
-ONLY: set[str] = set()      # --only: the steps to run (empty: all)
 
 # the plan's dev data: nav topology seed 30, 60 episodes of 20 s, half under hard conditions,
 # the emulator's current noise (preset_version 2)
@@ -159,8 +158,9 @@ def finish(proc: subprocess.Popen) -> int:
     return rc
 
 
-def run(parallel: int = 2) -> int:
-    todo = [s for s in steps() if not is_done(s) and (not ONLY or s["name"] in ONLY)]
+def run(parallel: int = 2, only: set[str] = frozenset()) -> int:
+    """Every step not done yet (of ``only``'s names, where given), in order."""
+    todo = [s for s in steps() if not is_done(s) and (not only or s["name"] in only)]
     running: list[subprocess.Popen] = []
     for step in todo:
         if not step.get("parallel"):
@@ -222,15 +222,13 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="", metavar="STEP,...",
                     help="run only these steps (names as `plan` prints them)")
     args = ap.parse_args(argv)
-    global ONLY
-    ONLY = {n for n in args.only.split(",") if n}
     if args.what == "plan":
         for s in steps():
             print(("done  " if is_done(s) else "todo  ") + s["name"] + ": sebvs "
                   + " ".join(s["argv"]))
         return 0
     if args.what == "run":
-        return run(args.parallel)
+        return run(args.parallel, {n for n in args.only.split(",") if n})
     return select()
 
 

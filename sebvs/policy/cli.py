@@ -81,8 +81,8 @@ def train_overrides(args, workers: int | str) -> dict:
 def recipe_settings(args) -> dict:
     """The recipe options of `sebvs train` (memory, target head, modality dropout,
     sequences) as TrainSettings fields; an option not given keeps its default."""
-    names = ("memory", "aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")
-    return {k: getattr(args, k) for k in names if getattr(args, k, None) is not None}
+    from .train import RECIPE_FIELDS
+    return {k: getattr(args, k) for k in RECIPE_FIELDS if getattr(args, k, None) is not None}
 
 
 def _add_recipe_options(t) -> None:

@@ -389,11 +389,9 @@ class ERP(nn.Module):
             token, state = self.recurrent(token, state)
         return self.head(token), state
 
-    def sequence(self, x: torch.Tensor, state: torch.Tensor, reset: torch.Tensor | None = None,
-                 valid: torch.Tensor | None = None
+    def sequence(self, x: torch.Tensor, state: torch.Tensor, valid: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
         """L ticks of B sequences, for training: (x [B, L, C, S, S], state [B, state_size],
-        reset [B, L] bool or None: the state restarts from zeros before those ticks,
         valid [B, L] bool or None: False at padding, whose ticks leave the state as it
         was) -> (prediction in the loss space [B, L, 2 | 7], TargetHead output [B, L, 3] or
         None, the state after the last tick [B, state_size]).
@@ -405,8 +403,6 @@ class ERP(nn.Module):
         if self.recurrent is not None:
             feats = []
             for t in range(n):
-                if reset is not None:
-                    state = state * (~reset[:, t])[:, None].to(state.dtype)
                 f, stepped = self.recurrent(tokens[:, t], state)
                 state = stepped if valid is None else \
                     torch.where(valid[:, t, None], stepped, state)

@@ -31,11 +31,12 @@ from typing import Callable
 from .checkpoint import checkpoint_paths
 from .sweep_grid import Grid, Point
 from .sweep_table import write_summary
+from .train import RECIPE_FIELDS
 
 POINT_LOG = "train.log"
 # settings handed to `train` as they are (TrainSettings fields of the same names)
 TRAIN_KEYS = ("epochs", "batch", "seed", "max_frames", "lr", "patience", "val_fraction", "stem",
-              "memory", "aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")
+              *RECIPE_FIELDS)
 # settings a checkpoint config records, and where: how a resumed point is checked
 RECORDED = {"modality": ("modality",), "size": ("size",), "stem": ("stem",),
             "event_clip": ("normalisation", "event_clip"), "lr": ("training", "lr"),
@@ -43,8 +44,7 @@ RECORDED = {"modality": ("modality",), "size": ("size",), "stem": ("stem",),
             "batch": ("training", "batch"), "epochs": ("training", "epochs"),
             "patience": ("training", "patience"), "seed": ("training", "seed"),
             "max_frames": ("training", "max_frames"), "memory": ("memory",),
-            **{k: ("training", "recipe", k)
-               for k in ("aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")}}
+            **{k: ("training", "recipe", k) for k in RECIPE_FIELDS if k != "memory"}}
 
 
 class SweepError(ValueError):
@@ -82,9 +82,7 @@ def resolved_settings(task: str, settings: dict) -> dict:
             "loss": s.loss, "epochs": s.epochs, "batch": s.batch, "patience": s.patience,
             "plateau": s.plateau, "val_fraction": s.val_fraction, "seed": s.seed,
             "max_frames": s.max_frames, "size": s.norm.size, "event_clip": s.norm.event_clip,
-            "stem": s.stem, "memory": s.memory, "aux_weight": s.aux_weight,
-            "modality_dropout": s.modality_dropout, "seq_len": s.seq_len, "lanes": s.lanes,
-            "burn_in": s.burn_in}
+            "stem": s.stem, **{k: getattr(s, k) for k in RECIPE_FIELDS}}
 
 
 # ---------------------------------------------------------------------- the worker side

@@ -40,6 +40,11 @@ from .steps import NonFiniteLoss, optimise  # noqa: F401  (NonFiniteLoss: its ho
 from .subnormal import ZeroSubnormals
 
 
+# the TrainSettings fields of the recipe options: what `sebvs train` takes as flags, a sweep
+# as settings, and a config records as training.recipe
+RECIPE_FIELDS = ("memory", "aux_weight", "modality_dropout", "seq_len", "lanes", "burn_in")
+
+
 @dataclass
 class TrainSettings:
     task: str
@@ -68,7 +73,7 @@ class TrainSettings:
     # shuffled frames. memory: "none" | "gru" (a recurrent state across ticks)
     memory: str = "none"
     aux_weight: float = 0.0       # > 0: the target head, its loss weighted so
-    modality_dropout: float = 0.0  # fused modalities: the share of lane batches losing a stream
+    modality_dropout: float = 0.0  # fused modalities: the share of windows losing a stream
     # windows of seq_len ticks, lanes of them a batch, each after burn_in ticks without
     # gradient. Defaults measured on the nav dev data (docs/policy.md): 4 windows of 8 did
     # not train (a batch of 4 places); 32 windows of 2 with 6 ticks of burn-in did
@@ -79,7 +84,7 @@ class TrainSettings:
 
     @property
     def on_sequences(self) -> bool:
-        """Whether these settings train on lanes of ticks (any recipe option is on)."""
+        """Whether these settings train on windows of ticks (any recipe option is on)."""
         return self.memory != "none" or self.aux_weight > 0 or self.modality_dropout > 0
 
 
@@ -452,7 +457,7 @@ def _sequence_loaders(td: TrainingData, generator, stats: dict):
     def truth_of(frames):
         if s.aux_weight <= 0:
             return None
-        return [target_truth(frames._episode(ei).path) for ei in range(len(frames.files))]
+        return [target_truth(path) for path in frames.paths]
     train = WindowBatches(td.train_set, s.lanes, s.seq_len, generator, truth_of(td.train_set),
                         s.burn_in)
     val = WindowBatches(td.val_set, s.lanes, s.seq_len, None, truth_of(td.val_set), s.burn_in)
@@ -572,10 +577,7 @@ def finish(td: TrainingData, fitted: Fitted, out: Path) -> dict:
                            "best_val_loss": done.best, "seed": s.seed,
                            "max_frames": s.max_frames,
                            **({"zero_subnormals": True} if s.zero_subnormals else {}),
-                           **({"recipe": {"memory": s.memory, "aux_weight": s.aux_weight,
-                                          "modality_dropout": s.modality_dropout,
-                                          "seq_len": s.seq_len, "lanes": s.lanes,
-                                          "burn_in": s.burn_in}}
+                           **({"recipe": {k: getattr(s, k) for k in RECIPE_FIELDS}}
                               if s.on_sequences else {}),
                            "seconds": round(fitted.seconds, 2),
                            **({"resumed_after_epochs": done.resumed} if done.resumed else {})},
