@@ -126,6 +126,9 @@ class Recorder(Actor):
         # applied to the file's content before it is stored, so the attributes say what
         # ran, and stored beside it as given
         overrides: list = field(default_factory=list)
+        # the named condition the run records (sebvs record --condition sets it), stored as
+        # each episode's ``condition`` attribute; "" for a topology's own mix
+        condition: str = ""
         # ticks waiting for a stream before they count as lost
         max_pending: Annotated[int, Range(ge=1, le=100_000)] = 256
         # wait this long after an end marker for its last rows
@@ -153,6 +156,8 @@ class Recorder(Actor):
             except (OSError, tomllib.TOMLDecodeError, TopologyError, TypeError) as exc:
                 topo = {"file": p.topology, "error": str(exc)}
         base = {"topology": topo, "streams": sorted(self.streams)}
+        if p.condition:
+            base["condition"] = p.condition
         emulator = emulator_params(topo.get("content", {}))
         if emulator:
             base["emulator"] = emulator

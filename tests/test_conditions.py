@@ -121,7 +121,8 @@ def test_sebvs_record_condition_records_that_condition(tmp_path):
                  "--runs-dir", str(tmp_path / "runs"), "--quiet", "--condition",
                  "fast_physical", "--scenario", "multi", "--set", "sim.episode_s=0.5"]) == 0
     with open_episode(DatasetIndex(out).episode_paths()[0]) as ep:
-        stored = ep.attrs["topology"]
+        stored, named = ep.attrs["topology"], ep.attrs.get("condition")
+    assert named == "fast_physical"     # what `sebvs data` groups its episodes by
     sim = stored["content"]["actors"]["sim"]
     assert sim["randomise"] == {} and sim["episode_s"] == 0.5
     assert {k: sim["config"][k] for k in ("conveyor", "belt_speed", "objects")} == {

@@ -262,10 +262,13 @@ def hard_share_mix(args, topo):
 
 def recorder_overrides(args, recorder: str, out: Path, given: list) -> list:
     """`given` and, last, the recorder's own settings for a run of `sebvs record`: it
-    applies `given` to the file it stores, so the episodes say what ran."""
-    return [*given, {recorder: {"out": str(out), "episodes": args.episodes,
-                                "topology": str(Path(args.topology).resolve()),
-                                "overrides": list(given)}}]
+    applies `given` to the file it stores, so the episodes say what ran, and stamps a
+    --condition run's episodes with its name, as a hard share's are (stamp_condition)."""
+    own = {"out": str(out), "episodes": args.episodes,
+           "topology": str(Path(args.topology).resolve()), "overrides": list(given)}
+    if getattr(args, "condition", None):
+        own["condition"] = args.condition
+    return [*given, {recorder: own}]
 
 
 def hard_share_jobs(args, recorder: str, out: Path, given: list, mix) -> dict:
