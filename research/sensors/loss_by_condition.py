@@ -99,10 +99,13 @@ def ablated_channels(cfg: dict, part: str) -> list[int]:
 class MeanAblated:
     """Items of ``frames`` with some input channels replaced by their mean over the frames
     (one number per channel, from every k-th frame): what the model sees when that input
-    carries nothing but its average level."""
+    carries nothing but its average level. Its ``pairs`` are the frames' (episode, tick)
+    per item, so a recurrent checkpoint's windows of ticks (sequence.py's WindowBatches)
+    are cut from it as from the frames themselves, burn-in ablated too."""
 
     def __init__(self, frames, channels: list[int], sample: int = 200):
         self.frames, self.channels = frames, channels
+        self.pairs = frames.pairs
         step = max(1, len(frames) // sample)
         xs = [frames[i][0][channels] for i in range(0, len(frames), step)]
         self.level = sum(x.mean(axis=(1, 2)) for x in xs) / max(len(xs), 1)

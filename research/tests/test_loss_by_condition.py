@@ -136,6 +136,25 @@ def test_ablating_the_part_a_policy_reads_costs_its_skill(tmp_path):
                           "--ablate", "second"]) == 2
 
 
+def test_a_recurrent_checkpoint_is_ablated_on_its_windows(tmp_path):
+    """A recipe checkpoint (GRU, windows of ticks with a burn-in) is measured as it was
+    validated, on windows; the ablated frames feed those windows, burn-in included."""
+    data = make_dataset(tmp_path / "data", episodes=8, frames=12, target="gain")
+    train(data, tmp_path / "ckpt", "nav", ["rgb+event"], epochs=4, batch=8,
+          val_fraction=0.4, norm=Normalisation(size=32), progress=False, log=lambda s: None,
+          memory="gru", seq_len=2, lanes=4, burn_in=2)
+    pt = tmp_path / "ckpt" / "nav-rgb+event.pt"
+    with study_module("sensors/loss_by_condition") as tool, \
+            tool_module("eval/val_loss") as val_loss:
+        _, cfg, _, _ = tool.validation_of(pt, data)
+        assert cfg["training"]["recipe"]["memory"] == "gru"
+        whole, no_rgb = (tool.measure(data, pt, ["scene"], ablate=a)["groups"]["-"]
+                         for a in (None, "rgb"))
+        assert whole["loss"] == pytest.approx(val_loss.recompute(pt, data)["val_loss_now"],
+                                              rel=1e-6)
+        assert no_rgb["frames"] == whole["frames"] and no_rgb["loss"] > whole["loss"]
+
+
 def test_ablation_levels_are_the_channels_mean_and_parse_as_the_actors_parameter(tmp_path,
                                                                                  capsys):
     """research/sensors/ablation_levels.py: the event channels' mean over the validation
