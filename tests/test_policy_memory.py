@@ -45,6 +45,10 @@ def test_a_sequence_is_its_steps_and_its_state_carries_on():
         fresh, _, _ = model.sequence(x[:, 2:], model.initial_state(3))
         assert not torch.allclose(pred[:, 2:], fresh, atol=1e-4)     # the state mattered
         assert ((aux[..., :2] >= 0) & (aux[..., :2] <= 1)).all()
+        # one tick from the initial state: the first tick of the sequence, whichever way in
+        torch.testing.assert_close(model.predict_loss_space(x[:, 0]), pred[:, 0],
+                                   atol=1e-5, rtol=0)
+        torch.testing.assert_close(model(x[:, 0]), steps[0], atol=1e-5, rtol=0)
     plain = ERP("nav", 2, 32)
     assert plain.state_size == 0 and plain.initial_state(2).shape == (2, 0)
 

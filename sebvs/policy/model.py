@@ -416,8 +416,12 @@ class ERP(nn.Module):
 
     def predict_loss_space(self, x: torch.Tensor) -> torch.Tensor:
         """x [B, C, S, S] -> the prediction where training compares it with loss_space(y):
-        the arm head's [B, 7] (ArmHead.predict_loss_space), the nav action as it is."""
-        return self.head.predict_loss_space(self._class_token(x))
+        the arm head's [B, 7] (ArmHead.predict_loss_space), the nav action as it is; with
+        memory, from the initial state, as `forward` (one tick of `sequence`)."""
+        token = self._class_token(x)
+        if self.recurrent is not None:
+            token, _ = self.recurrent(token, token.new_zeros(token.shape))
+        return self.head.predict_loss_space(token)
 
     def loss_space(self, y: torch.Tensor) -> torch.Tensor:
         """Targets [B, 6 | 2] in the space the training loss is taken: the arm head's
