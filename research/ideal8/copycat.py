@@ -77,17 +77,26 @@ def copy_scores(labels: list[np.ndarray], outputs: list[np.ndarray]) -> dict:
 
 
 def run_policy(model, modality: str, norm, ep) -> np.ndarray:
-    """The checkpoint's output for every tick of an open episode -> [T, C]."""
+    """The checkpoint's output for every tick of an open episode -> [T, C]; a recurrent
+    checkpoint's tick by tick from the initial state, its state carried on as the policy
+    actor carries it."""
     import torch
 
     out = []
     n = len(ep)
+    state = model.initial_state(1)
     for s in range(0, n, BATCH):
         rgb = ep.rgb[s:s + BATCH] if "rgb" in modality else [None] * min(BATCH, n - s)
         ev = ep.event_frame[s:s + BATCH] if "event" in modality else [None] * len(rgb)
-        x = np.stack([model_input(modality, norm, rgb=r, events=e) for r, e in zip(rgb, ev)])
+        x = torch.from_numpy(np.stack([model_input(modality, norm, rgb=r, events=e)
+                                       for r, e in zip(rgb, ev)]))
         with torch.no_grad():
-            out.append(model(torch.from_numpy(x)).numpy())
+            if model.state_size:
+                for tick in x:
+                    y, state = model.step(tick[None], state)
+                    out.append(y.numpy())
+            else:
+                out.append(model(x).numpy())
     return np.concatenate(out)
 
 

@@ -67,3 +67,26 @@ def test_command_line_scores_validation_episodes_and_refuses_another_dataset(too
     with pytest.raises(SystemExit, match="not .*other.*--episodes all"):
         tool.main([str(other), str(pt), "--threads", "1"])
     assert tool.main([str(other), str(pt), "--episodes", "all", "--threads", "1"]) == 0
+
+
+def test_a_recurrent_checkpoint_is_run_with_its_state(tool, tmp_path):
+    """The outputs are the actor's: each tick stepped from the state the ticks before it
+    left, not a tick with nothing remembered."""
+    from sebvs.data.episode import open_episode
+    from sebvs.policy.checkpoint import load_checkpoint
+    from sebvs.policy.inputs import model_input
+    data = make_dataset(tmp_path / "d", episodes=4, frames=12)
+    train(data, tmp_path / "ck", "nav", ["event"], epochs=1, batch=8, lr=1e-3, patience=1,
+          norm=Normalisation(size=32), progress=False, log=lambda s: None,
+          memory="gru", seq_len=2, lanes=4, burn_in=2)
+    model, cfg, norm = load_checkpoint(tmp_path / "ck" / "nav-event.pt")
+    path = sorted(data.glob("episode_*.h5"))[0]
+    with open_episode(path) as ep:
+        out = tool.run_policy(model, "event", norm, ep)
+        x = torch.from_numpy(np.stack([model_input("event", norm, events=e)
+                                       for e in ep.event_frame[:]]))
+    with torch.no_grad():
+        stepped, _, _ = model.sequence(x[None], model.initial_state(1))
+        alone = model(x).numpy()
+    np.testing.assert_allclose(out, stepped[0].numpy(), atol=1e-5)
+    assert not np.allclose(out[1:], alone[1:], atol=1e-5)      # the state mattered
