@@ -2,8 +2,10 @@
 
 Inputs  rgb      from the camera: arrays["rgb"] uint8 [H, W, 3] and meta truth, episode of
                  the samples at control ticks (meta control=False samples are ignored)
-        events   optional, from the accumulator: arrays["frame"] [2, H, W] counts, tick =
-                 the control tick; not wired: the video shows the RGB alone
+        events   optional, from the accumulator: arrays["frame"] of its representation
+                 (meta representation; drawn as ON/OFF counts, sebvs.dvs.render
+                 .event_counts), tick = the control tick; not wired: the video shows the
+                 RGB alone; a frame that is no event frame is counted in ignored_events
         episode  from the sim: meta event start / end; the end's tick is the episode's
                  last control tick
 Writes <directory>/<prefix>__ep<k>.mp4 (sebvs/eval/video.py composes and encodes) for
@@ -25,6 +27,7 @@ from typing import Annotated
 
 import numpy as np
 
+from sebvs.dvs.render import event_counts
 from sebvs.runtime import Actor, Message, Range
 
 # ticks held waiting for their partner frame (25.6 s at 10 Hz, ~20 MB of 160 px RGB). As
@@ -91,18 +94,21 @@ class VideoWriter(Actor):
             return
         if len(self.closed) >= self.params.episodes:
             return      # every video written: the rest of the run is not ours to copy
-        if msg.meta.get("representation", "counts") != "counts":
-            # voxel grids and normalised histograms have no ON/OFF count colours
+        representation = str(msg.meta.get("representation", "counts"))
+        try:
+            # histograms, voxel grids and time surfaces drawn as the viewer draws them
+            frame = event_counts(np.array(msg.arrays["frame"]), representation)
+        except (KeyError, ValueError) as exc:
             if not self._warned_repr:
-                self.log.warning("video: %s event frames are not overlaid (counts only)",
-                                 msg.meta.get("representation"))
+                self.log.warning("video: %s event frames not overlaid: %s", representation,
+                                 exc)
                 self._warned_repr = True
             self.counts["ignored_events"] += 1
             return
         if msg.tick <= self.last_written:
             self.counts["late"] += 1
             return
-        self.events[msg.tick] = np.array(msg.arrays["frame"])
+        self.events[msg.tick] = frame
         while len(self.events) > MAX_PENDING:
             del self.events[min(self.events)]
         self._flush()

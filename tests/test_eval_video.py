@@ -228,3 +228,35 @@ def test_actor_with_empty_directory_writes_nothing(tmp_path):
         return actor
 
     assert asyncio.run(go()).counts["frames"] == 0
+
+
+def test_actor_overlays_every_representation_and_counts_what_it_cannot(tmp_path):
+    """A time surface and a histogram overlay as the viewer draws them; a frame whose
+    planes are no ON/OFF pair is counted, once warned, never raised."""
+    def frame_msg(tick, frame, representation):
+        return msg("frames", tick, {"frame": frame}, {"episode": 0, "control": True,
+                                                      "representation": representation})
+
+    async def go():
+        actor, _ = make_writer(tmp_path, {"rgb", "events", "episode"})
+        await actor.setup()
+        surface = np.zeros((2, H, W), np.uint8)
+        surface[0, 5, 5] = 255
+        hist = np.zeros((4, H, W), np.uint8)
+        hist[1, 5, 5] = 2
+        await actor.on_events(frame_msg(0, surface, "time_surface"))
+        await actor.on_events(frame_msg(1, hist, "histogram"))
+        await actor.on_events(frame_msg(2, np.zeros((3, H, W), np.uint8), "histogram"))
+        held = {t: f.copy() for t, f in actor.events.items()}
+        for tick in range(3):
+            await actor.on_rgb(rgb_msg(tick))
+        await actor.on_episode(end_msg(2))
+        await actor.teardown()
+        return actor, held
+
+    actor, held = asyncio.run(go())
+    assert sorted(held) == [0, 1]
+    assert held[0].shape == held[1].shape == (2, H, W)
+    assert held[0][0, 5, 5] == 4 and held[1][0, 5, 5] == 2      # full colour; two counts
+    s = actor.stats()
+    assert (s["frames"], s["without_overlay"], s["ignored_events"]) == (3, 1, 1)

@@ -299,7 +299,7 @@ def test_serve_hosts_the_web_viewer_on_loopback_and_stops_it(tmp_path):
 
 # ---------------------------------------------------------------- what is drawn
 def test_event_frames_of_every_representation_become_on_off_counts():
-    from sebvs.view.entities import event_counts
+    from sebvs.dvs.render import FULL_COUNT, event_counts, event_image
     hist = np.zeros((6, 2, 2), np.uint8)      # 3 bins: ON bins 0..2, OFF bins 3..5
     hist[0, 0, 0], hist[2, 0, 0], hist[4, 1, 1] = 1, 2, 5
     np.testing.assert_array_equal(event_counts(hist, "histogram"),
@@ -313,6 +313,14 @@ def test_event_frames_of_every_representation_become_on_off_counts():
     assert event_counts(counts) is counts
     with pytest.raises(ValueError, match="even number"):
         event_counts(np.zeros((3, 2, 2), np.uint8), "histogram")
+    # a time surface: a fresh event (255) in full colour, an old one (25) faded, where
+    # read as counts every pixel the episode had seen would be at full colour
+    surface = np.zeros((2, 1, 3), np.uint8)
+    surface[0, 0] = [255, 25, 0]
+    shown = event_counts(surface, "time_surface")
+    np.testing.assert_allclose(shown[0, 0], [FULL_COUNT, 25 * FULL_COUNT / 255, 0])
+    fresh, faded, white = event_image(shown)[0]
+    assert fresh[0] == 0 and 0 < white[0] - faded[0] < white[0] - fresh[0]
 
 
 def test_truth_marks_scale_to_the_image_and_keep_only_what_is_given():

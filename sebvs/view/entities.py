@@ -22,36 +22,13 @@ from typing import Any
 
 import numpy as np
 
-from sebvs.dvs.render import event_image
+from sebvs.dvs.render import event_counts, event_image
 
 # the names of a command's components, by the array's name (nav "action", arm "pose")
 COMMAND_NAMES = {"action": ["v", "w"], "pose": ["x", "y", "z", "roll", "pitch", "yaw"]}
 TRUTH_SCALARS = ("distance", "visible")
 BOX_COLOUR = (40, 200, 80)
 CENTROID_COLOUR = (255, 200, 0)
-
-
-def event_counts(frame: np.ndarray, representation: str = "counts") -> np.ndarray:
-    """An accumulator's frame as [2, H, W] ON/OFF counts, whatever its representation.
-
-    counts [2, H, W] as is; histogram [2K, H, W] (ON bins then OFF bins) summed per
-    polarity; voxel [K, H, W] (signed) summed over bins, its positive part ON and its
-    negative part OFF.
-    """
-    frame = np.asarray(frame)
-    if frame.ndim != 3:
-        raise ValueError(f"an event frame is [C, H, W], got shape {frame.shape}")
-    if representation == "voxel":
-        total = frame.astype(np.float32).sum(axis=0)
-        return np.stack([np.maximum(total, 0), np.maximum(-total, 0)])
-    if frame.shape[0] % 2:
-        raise ValueError(f"a {representation} frame has an even number of planes (ON "
-                         f"then OFF), got {frame.shape[0]}")
-    k = frame.shape[0] // 2
-    if k == 1:
-        return frame
-    wide = frame.astype(np.uint32)
-    return np.stack([wide[:k].sum(axis=0), wide[k:].sum(axis=0)])
 
 
 def command_names(key: str, dim: int) -> list[str]:
