@@ -371,13 +371,19 @@ class ERP(nn.Module):
                              f"got {list(x.shape)}")
         return self.encoder(self.tokens(self.embed(x)))[:, 0]
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]; with memory, from the initial
-        state (a tick with nothing remembered)."""
+    def _first_tick(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> the feature the head reads [B, dim] at a tick with nothing
+        remembered: the class token, through the recurrent cell from the initial state
+        where there is one."""
         token = self._class_token(x)
         if self.recurrent is not None:
             token, _ = self.recurrent(token, token.new_zeros(token.shape))
-        return self.head(token)
+        return token
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x [B, C, S, S] -> action [B, 2] or pose [B, 6]; with memory, from the initial
+        state (a tick with nothing remembered)."""
+        return self.head(self._first_tick(x))
 
     def step(self, x: torch.Tensor, state: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -418,10 +424,7 @@ class ERP(nn.Module):
         """x [B, C, S, S] -> the prediction where training compares it with loss_space(y):
         the arm head's [B, 7] (ArmHead.predict_loss_space), the nav action as it is; with
         memory, from the initial state, as `forward` (one tick of `sequence`)."""
-        token = self._class_token(x)
-        if self.recurrent is not None:
-            token, _ = self.recurrent(token, token.new_zeros(token.shape))
-        return self.head.predict_loss_space(token)
+        return self.head.predict_loss_space(self._first_tick(x))
 
     def loss_space(self, y: torch.Tensor) -> torch.Tensor:
         """Targets [B, 6 | 2] in the space the training loss is taken: the arm head's

@@ -26,6 +26,8 @@ import numpy as np
 
 from sebvs.data.episode import open_episode
 
+from .steps import NonFiniteLoss, optimise
+
 # the target head's truth per tick: [centroid u / width, v / height, visible]
 TRUTH_WIDTH = 3
 # the centroid's loss unit, as a fraction of the image: an error of one 16 px patch at 160
@@ -224,12 +226,11 @@ def sequence_epoch(model, batches, criterion=None, optimizer=None, desc: str = "
 
     Returns:
         The mean action loss per tick (what early stopping compares). NonFiniteLoss
-        (train.py) at the first batch whose trained loss is not finite.
+        (steps.py) at the first batch whose trained loss is not finite.
     """
     import torch
     from tqdm import tqdm
 
-    from .steps import NonFiniteLoss, optimise
     training = optimizer is not None
     model.train(training)
     total = head_total = 0.0

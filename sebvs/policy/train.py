@@ -36,7 +36,7 @@ from .dataset import (OPEN_EPISODES, EpisodeBlockSampler, EpisodeFrames, availab
 from .inputs import Modality, Normalisation, event_clip_for
 from .resume import (NonFiniteState, first_non_finite, fingerprint, load_state, resume_path,
                      save_state)
-from .steps import NonFiniteLoss, optimise  # noqa: F401  (NonFiniteLoss: its home before)
+from .steps import NonFiniteLoss, optimise
 from .subnormal import ZeroSubnormals
 
 
