@@ -62,6 +62,8 @@ DAGGER = ["--rounds", "1", "--episodes", "40", "--episode-s", "20", "--first-see
           # the round's recording on the same noise model as the dev data (a training
           # refuses datasets of two emulator preset versions)
           "--set", "emulator.overrides={downsample=1.0, preset_version=2}"]
+# a DAgger candidate -> the candidate that is its round 0 (same data, options and seed)
+DAGGER_INIT = {"R4": "R2"}
 DEV_EVAL = ["--split", "dev", "--seed", "2000", "--episodes", "10",
             "--conditions", "nominal_physical,hdr", "--set", "sim.episode_s=10",
             "--workers", "2"]
@@ -81,9 +83,14 @@ def steps() -> list[dict]:
             ck = OUT / rid / "checkpoints"
             if rounds:
                 run = OUT / rid / f"dagger-{m}"
+                # round 0 is the same recipe without DAgger on the same data and seed:
+                # that candidate's checkpoint drives round 1 instead of a second training
+                init = OUT / DAGGER_INIT[rid] / "checkpoints"
                 argv = ["train-dagger", "--task", "nav", "--modality", m, "--data", data,
-                        "--out", str(run), *DAGGER, *BASE, *opts]
-                out.append({"name": f"train_{rid}_{m}", "argv": argv, "parallel": False,
+                        "--out", str(run), "--init", str(init), *DAGGER, *BASE, *opts]
+                # two at a time like the others: each round's recording and training are
+                # one modality's, independent of the other's
+                out.append({"name": f"train_{rid}_{m}", "argv": argv, "parallel": True,
                             "done": run / f"round-{rounds}" / "checkpoints" / f"nav-{m}.pt",
                             "copy_to": ck})
             else:
