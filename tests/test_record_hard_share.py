@@ -313,17 +313,35 @@ def test_a_dataset_of_another_plan_or_none_is_refused_before_anything_runs(
     assert not (tmp_path / "new").exists()
 
 
-def test_a_dead_driver_s_staged_episode_is_adopted_with_its_shard_s_condition(mixed,
-                                                                             tmp_path):
-    _, src = mixed
-    out = tmp_path / "d"
-    shutil.copytree(src, out)
+def _dead_stage(out: Path, info: dict, keep_condition: bool) -> None:
+    """A stage a dead driver left with episode 4 in it: episode 0's file renumbered."""
     stage = out / STAGING / "dead-4-5-try1"
     stage.mkdir(parents=True)
-    (stage / SHARD_INFO).write_text(json.dumps({"base": 0, "first": 4, "stop": 5,
-                                                "condition": "flicker_120"}))
+    (stage / SHARD_INFO).write_text(json.dumps({"base": 0, "first": 4, "stop": 5, **info}))
     shutil.copy(out / "episode_0000.h5", stage / "episode_0004.h5")
     with h5py.File(stage / "episode_0004.h5", "r+") as f:
         f.attrs["sim_episode"] = 4
+        if not keep_condition:
+            del f.attrs["condition"]
+
+
+def test_a_staged_episode_keeps_the_condition_its_recorder_stored(mixed, tmp_path):
+    _, src = mixed
+    out = tmp_path / "d"
+    shutil.copytree(src, out)
+    stored = conditions_of(out)[0]
+    assert stored        # every episode of a hard share says its condition itself
+    _dead_stage(out, {}, keep_condition=True)
+    assert adopt_staged(out) == ["episode_0004.h5"]
+    assert conditions_of(out)[4] == stored and check_dataset(out).ok
+
+
+def test_an_older_driver_s_staged_episode_is_adopted_with_its_shard_s_condition(mixed,
+                                                                                tmp_path):
+    # before the recorder stored a hard share's condition, the shard's info named it
+    _, src = mixed
+    out = tmp_path / "d"
+    shutil.copytree(src, out)
+    _dead_stage(out, {"condition": "flicker_120"}, keep_condition=False)
     assert adopt_staged(out) == ["episode_0004.h5"]
     assert conditions_of(out)[4] == "flicker_120" and check_dataset(out).ok

@@ -69,3 +69,22 @@ def test_a_recipe_checkpoint_recomputes_its_loss_on_its_lanes(tmp_path):
                           "--json", str(out)]) == 0
         result = json.loads(out.read_text())
     assert result["same"] and result["val_loss_now"] == result["val_loss_recorded"]
+
+
+def test_a_checkpoint_of_two_datasets_takes_both_in_its_order(tmp_path, capsys):
+    """A DAgger round's checkpoint is trained on the expert's recording and the round's:
+    its validation episodes come from both, the second's named by their absolute path."""
+    first = make_dataset(tmp_path / "expert", episodes=5, frames=16, target="gain")
+    second = make_dataset(tmp_path / "round-1", episodes=5, frames=16, target="gain", seed=7)
+    train([first, second], tmp_path / "ckpt", "nav", ["event"], epochs=1, batch=8,
+          norm=Normalisation(size=32), progress=False, log=lambda s: None)
+    pt = tmp_path / "ckpt" / "nav-event.pt"
+    val = json.loads(pt.with_suffix(".json").read_text())["dataset"]["val_episodes"]
+    assert any(name.startswith("/") for name in val)      # this split draws from both
+    with tool_module("eval/val_loss") as tool:
+        out = tmp_path / "r.json"
+        assert tool.main([str(pt), str(first), str(second), "--json", str(out)]) == 0
+        result = json.loads(out.read_text())
+        assert result["same"] and result["val_loss_now"] == result["val_loss_recorded"]
+        assert tool.main([str(pt), str(first)]) == 2
+        assert "lacks" in capsys.readouterr().err

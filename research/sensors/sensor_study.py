@@ -76,10 +76,49 @@ sys.path.insert(0, str(ROOT))
 from sebvs.data.index import DatasetIndex  # noqa: E402
 from sebvs.policy.resume import RESUME_SUFFIX, resume_path  # noqa: E402
 
-PLAN_FILE = "research/sensors/plan.md"
-STUDY_DIR = ROOT / "research" / "sensors" / "outputs"  # tracked: see its README.md
-SMOKE_DIR = ROOT / "out" / "study_sensors" / "smoke"
 LEDGER = "steps.jsonl"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A plan's recording of one task and rate: `sebvs record TOPOLOGY --episodes N` with
+    these --set lines and other options."""
+    episodes: int
+    sets: tuple[str, ...]           # --set lines: topology.seed's, the episode length's, ...
+    options: tuple[str, ...] = ()   # other `sebvs record` options (e.g. --hard-share)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a study's plan fixes, as data: this driver builds every command from it and
+    chooses nothing. SENSORS is this file's study; another study's script gives its own
+    Plan to main() (research/event_policies/study.py)."""
+    name: str                       # in the driver's messages: "sensor study"
+    plan_file: str                  # the plan, relative to the repository
+    out: Path                       # the outputs (tracked)
+    smoke_out: Path                 # the smoke run's (not tracked)
+    dataset_prefix: str             # datasets/<prefix><task><rate>
+    topology: dict                  # task -> its recording topology
+    recordings: dict                # (task, rate) -> Recording
+    recipe: dict                    # (task, modality) -> `sebvs train` options, --epochs in them
+    seeds: dict                     # rate -> modality -> training seeds
+    test_seed: dict                 # task -> `sebvs eval --seed` of the test split
+    episodes_per_cell: int
+    eval_groups: dict               # task -> [(group, conditions, scenarios)]
+    eval_sets: dict                 # task -> `sebvs eval` --set lines
+    read_rule: tuple[str, ...]      # `sebvs eval table`'s rule
+    read_metric: dict               # task -> its metric (None: the task's first)
+
+    @property
+    def readings(self) -> dict:
+        """The plan's task and rate pairs, in its order, by the name a reading goes by
+        ("nav10")."""
+        return {f"{t}{r}": (t, r) for t, r in self.recordings}
+
+    def training_seeds(self) -> tuple[int, ...]:
+        return tuple(sorted({s for per in self.seeds.values() for ss in per.values()
+                             for s in ss}))
+
 
 # ------------------------------------------------------------------ the plan, as written
 # the frame camera's own sub-frames, exposed to 5 ms before each tick: the study's frames
@@ -98,34 +137,56 @@ RANDOMISE = {
 RATE_SETS = {10: [], 30: ["sim.control_hz=30.0", "sim.render_hz=120.0", "camera.dvs_hz=120.0",
                           "sim.physics_hz=1080.0",
                           "accumulator.window_s=0.03333333333333333"]}
-PLAN_RECORDINGS = {  # (task, rate) -> topology seed, episodes, extra sets
-    ("nav", 10): (20, 120, ["sim.episode_s=20.0"]),
-    ("nav", 30): (21, 120, ["sim.episode_s=20.0"]),
-    ("arm", 10): (22, 1500, []),
-    ("arm", 30): (23, 1500, []),
-}
 TOPOLOGY = {"nav": "topologies/nav_record.toml", "arm": "topologies/arm_record.toml"}
 RECIPE = {
     "nav": ["--epochs", "10", "--patience", "3", "--stem", "conv", "--lr", "5e-4"],
     "arm": ["--epochs", "16", "--stem", "conv", "--lr", "5e-4"],
 }
+MODALITIES = ("rgb+event", "rgb+diff", "rgb", "event")
 PLAN_SEEDS = {  # rate -> modality -> training seeds
     10: {"rgb+event": (0, 1, 2), "rgb+diff": (0, 1, 2), "rgb": (0, 1, 2), "event": (0,)},
     30: {"rgb+event": (0, 1, 2), "rgb+diff": (0, 1, 2), "rgb": (0,), "event": (0,)},
 }
-TEST_SEED = {"nav": 100_100, "arm": 100_200}
-EPISODES_PER_CELL = 20          # 30 in the plan, 20 after its step 0 (plan, "Step 0, measured")
-# (name, conditions, scenarios): nav runs as two evaluations, flicker indoors only
-EVAL_GROUPS = {
-    "nav": [("main", "nominal_physical,hdr,dusk,dusk_fast", "indoor,outdoor"),
-            ("flicker", "flicker_100,flicker_120", "indoor")],
-    "arm": [("main", "nominal_physical,fast_physical,hdr,dusk_moving", "single,multi")],
-}
-EVAL_SETS = {"nav": ["sim.episode_s=10"], "arm": []}
-# the plan's task and rate pairs, in its order, by the name a reading goes by ("nav10")
-READINGS = {f"{t}{r}": (t, r) for t in ("nav", "arm") for r in (10, 30)}
-READ_RULE = ["--a", "rgb+event", "--b", "rgb+diff", "--min-diff", "10", "--min-ahead", "3"]
-READ_METRIC = {"nav": "strict_success", "arm": None}   # arm: the task's first, grasp
+READ_RULE = ("--a", "rgb+event", "--b", "rgb+diff", "--min-diff", "10", "--min-ahead", "3")
+
+
+def _recording(task: str, rate: int, seed: int, episodes: int, extra: list[str]) -> Recording:
+    return Recording(episodes, tuple([*extra, f"topology.seed={seed}", *PHYS, *RATE_SETS[rate],
+                                      RANDOMISE[task]]))
+
+
+SENSORS = Plan(
+    name="sensor study", plan_file="research/sensors/plan.md",
+    out=ROOT / "research" / "sensors" / "outputs",      # tracked: see its README.md
+    smoke_out=ROOT / "out" / "study_sensors" / "smoke", dataset_prefix="study_",
+    topology=TOPOLOGY,
+    recordings={("nav", 10): _recording("nav", 10, 20, 120, ["sim.episode_s=20.0"]),
+                ("nav", 30): _recording("nav", 30, 21, 120, ["sim.episode_s=20.0"]),
+                ("arm", 10): _recording("arm", 10, 22, 1500, []),
+                ("arm", 30): _recording("arm", 30, 23, 1500, [])},
+    recipe={(t, m): tuple(RECIPE[t]) for t in TOPOLOGY for m in MODALITIES},
+    seeds=PLAN_SEEDS, test_seed={"nav": 100_100, "arm": 100_200},
+    episodes_per_cell=20,       # 30 in the plan, 20 after its step 0 (plan, "Step 0, measured")
+    # (name, conditions, scenarios): nav runs as two evaluations, flicker indoors only
+    eval_groups={"nav": [("main", "nominal_physical,hdr,dusk,dusk_fast", "indoor,outdoor"),
+                         ("flicker", "flicker_100,flicker_120", "indoor")],
+                 "arm": [("main", "nominal_physical,fast_physical,hdr,dusk_moving",
+                          "single,multi")]},
+    eval_sets={"nav": ["sim.episode_s=10"], "arm": []},
+    read_rule=READ_RULE,
+    read_metric={"nav": "strict_success", "arm": None})   # arm: the task's first, grasp
+
+# the study this driver runs: SENSORS unless main() is given another plan (use_plan)
+PLAN = SENSORS
+# the sensor study's tables by the names its report and readers import
+STUDY_DIR, PLAN_FILE, READINGS = SENSORS.out, SENSORS.plan_file, SENSORS.readings
+EVAL_GROUPS, READ_METRIC = SENSORS.eval_groups, SENSORS.read_metric
+
+
+def use_plan(plan: Plan) -> None:
+    """Drive ``plan`` from here on: one study per process (its script's main)."""
+    global PLAN
+    PLAN = plan
 
 
 @dataclass(frozen=True)
@@ -148,11 +209,12 @@ DATASETS_ENV = "SEBVS_STUDY_DATASETS"
 
 
 def dataset_dir(task: str, rate: int) -> Path:
-    """Where the study's recording of a task and rate lives: datasets/study_<task><rate>,
-    under $SEBVS_STUDY_DATASETS instead of datasets/ when it is set (another disk; the
-    tests, which must never touch a study's real recordings)."""
+    """Where the study's recording of a task and rate lives: datasets/<the plan's
+    prefix><task><rate> (study_nav10), under $SEBVS_STUDY_DATASETS instead of datasets/
+    when it is set (another disk; the tests, which must never touch a study's real
+    recordings)."""
     root = os.environ.get(DATASETS_ENV)
-    return (Path(root) if root else ROOT / "datasets") / f"study_{task}{rate}"
+    return (Path(root) if root else ROOT / "datasets") / f"{PLAN.dataset_prefix}{task}{rate}"
 
 
 def checkpoint_dir(out: Path, task: str, rate: int, seed: int) -> Path:
@@ -176,43 +238,45 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
     sebvs = [sys.executable, "-m", "sebvs.cli"]
     ray_args = [] if ray is None else ["--ray"] + ([ray] if ray else [])
     fan_out = ["--workers", str(workers), *ray_args]
-    keys = [key for name, key in READINGS.items() if cells is None or name in cells]
+    plan = PLAN
+    keys = [key for name, key in plan.readings.items() if cells is None or name in cells]
     steps = []
     for task, rate in keys:
-        seed, episodes, extra = PLAN_RECORDINGS[(task, rate)]
+        rec = plan.recordings[(task, rate)]
         data = dataset_dir(task, rate)
         steps.append(Step("record", f"record {task} {rate} Hz", tuple(
-            sebvs + ["record", TOPOLOGY[task], "--episodes", str(episodes), "--out", str(data),
-                     *fan_out, "--quiet",
-                     *sets([*extra, f"topology.seed={seed}", *PHYS, *RATE_SETS[rate],
-                            RANDOMISE[task]])]), data / "index.json", episodes,
+            sebvs + ["record", plan.topology[task], "--episodes", str(rec.episodes),
+                     "--out", str(data), *fan_out, "--quiet", *rec.options,
+                     *sets(list(rec.sets))]), data / "index.json", rec.episodes,
             task=task, rate=rate))
     for task, rate in keys:
-        for modality, seeds in PLAN_SEEDS[rate].items():
+        for modality, seeds in plan.seeds[rate].items():
             for seed in seeds:
                 ckpt = checkpoint_dir(out, task, rate, seed)
                 steps.append(Step("train", f"train {task} {rate} Hz {modality} seed {seed}", tuple(
                     sebvs + ["train", "--task", task, "--modality", modality, "--data",
                              str(dataset_dir(task, rate)), "--out", str(ckpt), "--seed",
-                             str(seed), "--threads", "1", "--no-progress", *RECIPE[task]]),
+                             str(seed), "--threads", "1", "--no-progress",
+                             *plan.recipe[(task, modality)]]),
                     ckpt / f"{task}-{modality}.pt", task=task, rate=rate))
     for task, rate in keys:
-        seeds = sorted({s for ss in PLAN_SEEDS[rate].values() for s in ss})
+        seeds = sorted({s for ss in plan.seeds[rate].values() for s in ss})
         for seed in seeds:
-            modalities = [m for m, ss in PLAN_SEEDS[rate].items() if seed in ss]
+            modalities = [m for m, ss in plan.seeds[rate].items() if seed in ss]
             # the expert and no-action rows do not depend on a training seed: seed 0's run
             rows = [] if seed == 0 else ["--no-expert", "--no-baseline"]
             rate_args = [] if rate == 10 else ["--control-hz", str(rate)]
-            for group, conditions, scenarios in EVAL_GROUPS[task]:
+            for group, conditions, scenarios in plan.eval_groups[task]:
                 d = eval_dir(out, task, rate, seed, group)
                 steps.append(Step("eval", f"eval {task} {rate} Hz seed {seed} {group}", tuple(
                     sebvs + ["eval", "--task", task, "--modalities", ",".join(modalities),
                              "--checkpoints", str(checkpoint_dir(out, task, rate, seed)),
-                             "--split", "test", "--seed", str(TEST_SEED[task]),
-                             "--episodes", str(EPISODES_PER_CELL), "--conditions", conditions,
+                             "--split", "test", "--seed", str(plan.test_seed[task]),
+                             "--episodes", str(plan.episodes_per_cell),
+                             "--conditions", conditions,
                              "--scenarios", scenarios, *rate_args, *rows,
                              *fan_out, "--out", str(d),
-                             *sets(EVAL_SETS[task])]), d / "results.json",
+                             *sets(plan.eval_sets[task])]), d / "results.json",
                     task=task, rate=rate, group=group))
     for task, rate in keys:
         read = reading_path(out, task, rate)
@@ -226,10 +290,14 @@ def plan_steps(out: Path, workers: int, cells: set[str] | None,
 def read_arguments(out: Path, task: str, rate: int) -> list[str]:
     """`sebvs eval table`'s arguments for a task and rate's reading: each training seed's
     evaluations (NAME=DIR), the plan's rule and metric."""
-    runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in (0, 1, 2)
-            for g, _, _ in EVAL_GROUPS[task]]
-    metric = ["--metric", READ_METRIC[task]] if READ_METRIC[task] else []
-    return [*runs, *READ_RULE, *metric]
+    plan = PLAN
+    flags = dict(zip(plan.read_rule[::2], plan.read_rule[1::2]))
+    fused = {flags["--a"], flags["--b"]}          # the two rows the rule compares
+    seeds = sorted({s for m, ss in plan.seeds[rate].items() if m in fused for s in ss})
+    runs = [f"seed{s}={eval_dir(out, task, rate, s, g)}" for s in seeds
+            for g, _, _ in plan.eval_groups[task]]
+    metric = ["--metric", plan.read_metric[task]] if plan.read_metric[task] else []
+    return [*runs, *plan.read_rule, *metric]
 
 
 SMOKE_SEEDS = (0, 1)     # two training seeds: the fewest a seed table reads
@@ -389,7 +457,7 @@ def gl_stack() -> str | None:
         if probe.returncode == 0 and found:
             return found[-1]
         reason = (probe.stderr.strip().splitlines() or [f"exit code {probe.returncode}"])[-1]
-    print(f"sensor study: the ledger cannot name the GL stack: {reason}", file=sys.stderr)
+    print(f"{PLAN.name}: the ledger cannot name the GL stack: {reason}", file=sys.stderr)
     return None
 
 
@@ -529,8 +597,9 @@ def planned_frames(task: str, rate: int) -> int:
     """The labelled frames the plan's recording of a task and rate holds, before it exists
     (a new checkout has no datasets): episodes x (episode seconds x rate + 1), one per
     control tick and one at the start (nav 10 Hz: 120 x 201 = 24,120, as recorded)."""
-    _, episodes, extra = PLAN_RECORDINGS[(task, rate)]
-    return episodes * (round(episode_seconds(task, tuple(sets(extra)), "record") * rate) + 1)
+    rec = PLAN.recordings[(task, rate)]
+    return rec.episodes * (round(episode_seconds(task, tuple(sets(list(rec.sets))), "record")
+                                 * rate) + 1)
 
 
 def step_work(step: Step, epochs: float | None = None) -> float:
@@ -544,7 +613,7 @@ def step_work(step: Step, epochs: float | None = None) -> float:
         data = Path(argv[argv.index("--data") + 1])
         episodes = DatasetIndex(data).episodes() if (data / "index.json").exists() else []
         frames = (sum(e.get("frames", 0) for e in episodes)
-                  if len(episodes) >= PLAN_RECORDINGS[(step.task, step.rate)][1] else
+                  if len(episodes) >= PLAN.recordings[(step.task, step.rate)].episodes else
                   planned_frames(step.task, step.rate))
         record = training_record(step)
         if record is not None:
@@ -753,22 +822,27 @@ def run_step(step: Step, log: Path, stop: threading.Event) -> tuple[Step, int | 
     return step, code, took
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+def main(argv: list[str] | None = None, plan: Plan = SENSORS, doc: str | None = None) -> int:
+    """The driver's command line, for ``plan`` (a study's script passes its own, and its
+    docstring as ``doc``, the help's text)."""
+    use_plan(plan)
+    doc = __doc__ if doc is None else doc
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+                                 epilog="\n\n".join(doc.split("\n\n")[1:]))
     ap.add_argument("action", choices=["plan", "run", "status", "smoke"],
                     help="smoke: the plan's commands shrunk to minutes (one epoch, one "
                          "episode per cell on a dev seed) into OUT/smoke, to check they "
                          "work end to end before the real run; its numbers mean nothing")
     ap.add_argument("--steps", default="record,train,eval,read",
                     help="which kinds of step, comma-separated (default all, in order)")
+    known = list(plan.readings)
     ap.add_argument("--only", default=None, metavar="CELLS",
-                    help="task and rate, comma-separated: nav10, nav30, arm10, arm30; `run` "
-                         "takes them in the order given (default: all, in that order)")
+                    help=f"task and rate, comma-separated: {', '.join(known)}; `run` takes "
+                         f"them in the order given (default: all, in that order)")
     ap.add_argument("--out", type=Path, default=None,
-                    help="the study's outputs (default research/sensors/outputs, tracked; smoke: "
-                         "out/study_sensors/smoke)")
+                    help=f"the study's outputs (default {plan.out.relative_to(ROOT)}, "
+                         f"tracked; smoke: {plan.smoke_out.relative_to(ROOT)})")
     ap.add_argument("--commit", action="store_true",
                     help="commit each finished step's outputs and its ledger line at once "
                          "(git, only those paths), so that a new checkout resumes after it")
@@ -781,18 +855,17 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     kinds = args.steps.split(",")
     cells = set(args.only.split(",")) if args.only else None
-    known = {f"{t}{r}" for t in ("nav", "arm") for r in (10, 30)}
-    if cells and cells - known:
-        ap.error(f"--only: unknown {', '.join(sorted(cells - known))} (known: "
+    if cells and cells - set(known):
+        ap.error(f"--only: unknown {', '.join(sorted(cells - set(known)))} (known: "
                  f"{', '.join(sorted(known))})")
     if set(kinds) - {"record", "train", "eval", "read"}:
         ap.error("--steps: give record, train, eval, read")
     if args.action == "smoke":
-        args.out = SMOKE_DIR if args.out is None else args.out / "smoke"
+        args.out = plan.smoke_out if args.out is None else args.out / "smoke"
         planned = smoke_steps(args.out, args.workers, cells)     # records none
         steps = [s for s in planned if s.kind in kinds]
     else:
-        args.out = STUDY_DIR if args.out is None else args.out
+        args.out = plan.out if args.out is None else args.out
         planned = plan_steps(args.out, args.workers, cells, args.ray)
         steps = [s for s in planned if s.kind in kinds]
     if args.action == "plan":
@@ -813,7 +886,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, stop_running)
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:     # a background job's stays
         signal.signal(signal.SIGINT, stop_running)
-    print(f"sensor study ({PLAN_FILE}): log {log}", file=sys.stderr)
+    print(f"{plan.name} ({plan.plan_file}): log {log}", file=sys.stderr)
     gl_stack()      # asked here, before the steps' threads, so that it is asked (and a
                     # failure said) once, not by two trainings starting side by side
     for note in notes:
@@ -825,10 +898,10 @@ def main(argv: list[str] | None = None) -> int:
                     and not is_done(s)]
             if not run_together(todo, log, args.parallel if kind == "train" else 1,
                                 commit=args.out if args.commit else None):
-                print(f"sensor study: stopped; the step's output under {log.parent / 'logs'} "
+                print(f"{plan.name}: stopped; the step's output under {log.parent / 'logs'} "
                       f"says why", file=sys.stderr)
                 if args.commit and STOPPING.is_set() and (said := commit_at_stop(args.out)):
-                    print(f"sensor study: the ledger and resume states are not committed "
+                    print(f"{plan.name}: the ledger and resume states are not committed "
                           f"({said}); commit them by hand", file=sys.stderr)
                 return 1
     return 0
@@ -856,7 +929,7 @@ def run_together(todo: list[Step], log: Path, parallel: int,
                      f"stopped (exit {code})" if STOPPING.is_set() else f"FAILED (exit {code})")
             print(f"{step.label}: {state} in {took / 60:.1f} min", file=sys.stderr)
             if commit is not None and state == "done" and (said := commit_outputs(step, commit)):
-                print(f"sensor study: {step.label}: its outputs are not committed ({said}); "
+                print(f"{PLAN.name}: {step.label}: its outputs are not committed ({said}); "
                       f"commit them by hand", file=sys.stderr)
             if state != "done":
                 stop.set()                   # nothing new starts; running ones end

@@ -201,7 +201,7 @@ def fake_datasets(study, root, monkeypatch, frames: dict[str, int]) -> None:
     monkeypatch.setattr(study, "dataset_dir", lambda task, rate: root / f"study_{task}{rate}")
     for name, n in frames.items():
         task, rate = name.removeprefix("study_")[:3], int(name.removeprefix("study_")[3:])
-        episodes = study.PLAN_RECORDINGS[(task, rate)][1]
+        episodes = study.SENSORS.recordings[(task, rate)].episodes
         (root / name).mkdir()
         (root / name / "index.json").write_text(json.dumps(
             {"version": 1, "task": task, "episodes": [

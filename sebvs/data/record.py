@@ -67,7 +67,7 @@ from pathlib import Path
 
 RECORDER_CLASS = "actors.recorder:Recorder"
 STAGING = ".staging"        # <out>/.staging/<shard>/: where fan-out workers record
-SHARD_INFO = "shard.json"   # in each: {"base", "first", "stop"} (+ "condition": --hard-share)
+SHARD_INFO = "shard.json"   # in each: {"base", "first", "stop"}
 
 
 def find_recorder(topo) -> str:
@@ -260,14 +260,16 @@ def hard_share_mix(args, topo):
     return ConditionMix(parse_share(share), conditions, scenario)
 
 
-def recorder_overrides(args, recorder: str, out: Path, given: list) -> list:
+def recorder_overrides(args, recorder: str, out: Path, given: list,
+                       condition: str | None = None) -> list:
     """`given` and, last, the recorder's own settings for a run of `sebvs record`: it
-    applies `given` to the file it stores, so the episodes say what ran, and stamps a
-    --condition run's episodes with its name, as a hard share's are (stamp_condition)."""
+    applies `given` to the file it stores, so the episodes say what ran, and stores
+    `condition` (a --condition run's name, or a hard share's job: hard_share_jobs) as
+    each episode's ``condition`` attribute."""
     own = {"out": str(out), "episodes": args.episodes,
            "topology": str(Path(args.topology).resolve()), "overrides": list(given)}
-    if getattr(args, "condition", None):
-        own["condition"] = args.condition
+    if condition or getattr(args, "condition", None):
+        own["condition"] = condition or args.condition
     return [*given, {recorder: own}]
 
 
@@ -292,13 +294,14 @@ def hard_share_jobs(args, recorder: str, out: Path, given: list, mix) -> dict:
     from sebvs.runtime.overrides import as_mapping, lookup
     from sebvs.runtime.topology import load_topology
     from .condition_mix import RANDOMISED
-    jobs = {RANDOMISED: as_mapping(recorder_overrides(args, recorder, out, given))}
+    jobs = {RANDOMISED: as_mapping(recorder_overrides(args, recorder, out, given,
+                                                      RANDOMISED))}
     sim = first_episode_actor(load_topology(args.topology, given))
     for name in dict.fromkeys(mix.conditions):
         one = argparse.Namespace(**{**vars(args), "condition": name,
                                     "scenario": mix.scenario})
         layers = requested_overrides(one, keep_mix=True)
-        jobs[name] = as_mapping(recorder_overrides(args, recorder, out, layers))
+        jobs[name] = as_mapping(recorder_overrides(args, recorder, out, layers, name))
         # the condition's layer holds the mix it leaves; the --set lines come after it
         condition_layer = layers[len(layers) - len(args.set) - 1]
         left = lookup(condition_layer, sim, "randomise", default={})
@@ -517,7 +520,9 @@ def adopt_stage(stage: Path, index, have: set[int] | None = None) -> list[int]:
         if not info["first"] <= k < info["stop"] or number in have or dest.exists():
             p.unlink()
             continue
-        if info.get("condition") is not None:
+        # a stage of a driver from before the recorder stored the condition itself
+        # (2026-12-02) names it here instead
+        if info.get("condition") is not None and not _has_condition(p):
             try:
                 stamp_condition(p, info["condition"])
             except OSError:     # left in the stage (removed with it): recorded again
@@ -527,6 +532,15 @@ def adopt_stage(stage: Path, index, have: set[int] | None = None) -> list[int]:
         have.add(number)
         adopted.append(k)
     return adopted
+
+
+def _has_condition(path: Path) -> bool:
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            return bool(f.attrs.get("condition"))
+    except OSError:
+        return False
 
 
 def stamp_condition(path: Path, condition: str) -> None:
@@ -713,9 +727,8 @@ class StagedShards:
         # shards cover [base, base + n) of the seed's episodes, so episode k is the
         # dataset's number k (base 0 here; a shard.json of an older driver may say
         # another base, which adopt_stage adds)
+        # (a hard share's episodes carry their job's condition from the recorder itself)
         info = {"base": 0, "first": shard.first, "stop": shard.stop}
-        if self.jobs is not None:
-            info["condition"] = shard.job
         (stage / SHARD_INFO).write_text(json.dumps(info))
         if index.task is not None:
             # the worker's recorder then refuses a stream of another task, as it would in

@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """Does a dataset hold the validation frames a checkpoint was trained on?
 
-    tools/eval/val_loss.py CHECKPOINT.pt DATASET [--rtol 1e-6] [--json OUT]
+    tools/eval/val_loss.py CHECKPOINT.pt DATASET [DATASET ...] [--rtol 1e-6] [--json OUT]
+
+A checkpoint trained on several datasets (a DAgger round's: the expert's recording and
+each round's) takes them all, in the order it was trained on them.
 
 A recording made again from the same commands is the same recording only where the
 frames and labels are; its files never are byte for byte (each episode stores the wall-
@@ -40,19 +43,35 @@ def first_few(names: list[str], n: int = 3) -> str:
     return ", ".join(names[:n]) + (", ..." if len(names) > n else "")
 
 
-def episodes_named(data: Path, task: str, names: list[str], what: str) -> list[dict]:
-    """The dataset's index entries of these episode files, in the index's order (the order
-    training used: its split keeps it); ValueError naming what is missing."""
-    from sebvs.policy.dataset import load_index
-    episodes = [e for e in load_index(data, task) if e["file"] in set(names)]
-    missing = sorted(set(names) - {e["file"] for e in episodes})
+def as_roots(data) -> list[Path]:
+    """One dataset (a path) or several (a list of paths, in the order trained on): a list."""
+    return [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
+
+
+def record_name(first: Path, entry: dict) -> str:
+    """An entry's name in a checkpoint's record (sebvs.policy.train.dataset_record): its
+    file name in the first dataset, its absolute path in another."""
+    own = Path(entry.get("root", first))
+    return entry["file"] if own == first else str((own / entry["file"]).resolve())
+
+
+def episodes_named(data, task: str, names: list[str], what: str) -> list[dict]:
+    """The datasets' index entries of these episodes (named as the record names them), in
+    the datasets' and their indexes' order (the order training used: its split keeps it);
+    ValueError naming what is missing."""
+    from sebvs.policy.dataset import load_datasets
+    data, wanted = as_roots(data), set(names)
+    episodes = [e for e in load_datasets(data, task) if record_name(data[0], e) in wanted]
+    missing = sorted(wanted - {record_name(data[0], e) for e in episodes})
     if missing:
-        raise ValueError(f"{data}: lacks {len(missing)} of the checkpoint's {what} episodes "
-                         f"({first_few(missing)})")
+        given = ", ".join(map(str, data))
+        verb = "lacks" if len(data) == 1 else "lack"
+        raise ValueError(f"{given}: {verb} {len(missing)} of the checkpoint's {what} "
+                         f"episodes ({first_few(missing)})")
     return episodes
 
 
-def validation_of(pt: Path, data: Path):
+def validation_of(pt: Path, data):
     """(model, its config, its input normalisation, the dataset's entries of the
     checkpoint's validation episodes), from the checkpoint's JSON record; ValueError when
     the record or the dataset lacks them."""
@@ -72,12 +91,12 @@ def criterion_of(training: dict):
     return torch.nn.MSELoss() if training.get("loss", "mse") == "mse" else torch.nn.SmoothL1Loss()
 
 
-def frames_of(data: Path, episodes: list[dict], cfg: dict, norm):
+def frames_of(data, episodes: list[dict], cfg: dict, norm):
     """The frames training would have validated on from these episodes (its max_frames
     rule: a quarter of the training's cap, spread over them)."""
     from sebvs.policy.dataset import EpisodeFrames
     training = cfg.get("training", {})
-    return EpisodeFrames(data, episodes, cfg["task"], cfg["modality"], norm,
+    return EpisodeFrames(as_roots(data)[0], episodes, cfg["task"], cfg["modality"], norm,
                          max(1, training["max_frames"] // 4) if training.get("max_frames") else 0)
 
 
@@ -107,15 +126,18 @@ def mean_loss(model, frames, training: dict) -> float:
         frames.close()
 
 
-def recompute(pt: Path, data: Path) -> dict:
-    """The checkpoint's validation loss on ``data`` now, beside the one its record holds."""
+def recompute(pt: Path, data: Path | list[Path]) -> dict:
+    """The checkpoint's validation loss on ``data`` (one dataset, or the list it was
+    trained on) now, beside the one its record holds."""
+    data = as_roots(data)
     model, cfg, norm, episodes = validation_of(pt, data)
     training = cfg["training"]
     val = frames_of(data, episodes, cfg, norm)
     frames = len(val)
     now = mean_loss(model, val, training)
     then = float(training["best_val_loss"])
-    return {"checkpoint": str(pt), "dataset": str(data), "modality": cfg["modality"],
+    return {"checkpoint": str(pt), "dataset": ", ".join(map(str, data)),
+            "modality": cfg["modality"],
             "val_frames": frames, "val_loss_now": now, "val_loss_recorded": then,
             "relative_difference": abs(now - then) / max(abs(then), 1e-30)}
 
@@ -125,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n\n".join(__doc__.split("\n\n")[1:]))
     ap.add_argument("checkpoint", type=Path, help="a .pt with its .json record beside it")
-    ap.add_argument("dataset", type=Path, help="a dataset directory (index.json)")
+    ap.add_argument("dataset", type=Path, nargs="+",
+                    help="the dataset directories (index.json) it was trained on, in order")
     ap.add_argument("--rtol", type=float, default=1e-6,
                     help="the relative difference still called the same (default 1e-6)")
     ap.add_argument("--json", type=Path, help="also write the result here")
@@ -140,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     verdict = ("agrees: the same frames as far as the model can tell" if result["same"]
                else "DIFFERS: not the frames or labels it was trained on")
     print(f"{args.checkpoint}: validation loss {result['val_loss_now']:.10g} on "
-          f"{args.dataset} ({result['val_frames']} frames), {result['val_loss_recorded']:.10g} "
+          f"{result['dataset']} ({result['val_frames']} frames), {result['val_loss_recorded']:.10g} "
           f"in its record: relative difference {result['relative_difference']:.2g} "
           f"({verdict}, at rtol {args.rtol:g})")
     if args.json:
