@@ -48,7 +48,7 @@ from research.sensors.sensor_study import Plan, Recording  # noqa: E402
 
 # step 1's choice (research/event_policies/outputs/step1/selection.json), written into
 # docs/plan_event_policies.md before step 2; None until then, and the test does not run
-CHOSEN: str | None = None
+CHOSEN: str | None = "R3"
 
 SELECTION = step1.OUT / "selection.json"
 # the dev data's sensors: the camera renders at the sensor size, the current noise model
