@@ -330,8 +330,12 @@ def test_the_cells_measure_the_event_sensor_their_documented_figures_were_measur
         ("nominal", "indoor", 0)
     r = validate.sensor_cell("nav", committed["config"], seed=0, episode_s=8.0)
     for key in ("event_edge_coverage", "event_background_coverage",
-                "event_edge_coverage_ideal", "detector_hit_rate", "exposure_s_median"):
+                "event_edge_coverage_ideal", "detector_hit_rate"):
         assert r[key] == committed[key], key
+    # the auto-exposure loop feeds a float mean of the frame back into the next exposure:
+    # on another CPU's reduction kernels it settles 4e-5 apart (0.0142452 against the
+    # committed 0.0142458 s, seen 2026-12-02), the events above unchanged
+    assert r["exposure_s_median"] == pytest.approx(committed["exposure_s_median"], rel=1e-3)
 
 
 def test_shared_light_frames_exposed_ahead_are_the_frames_of_the_tick(monkeypatch):
