@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     if CHOSEN is None:
         print(f"event-policy test: step 1 has not chosen its recipe yet (CHOSEN is unset; "
               f"{SELECTION.relative_to(ROOT)} says {selection_chosen()!r}): finish step 1 "
-              f"and write its choice into {'docs/plan_event_policies.md'} first",
+              "and write its choice into docs/plan_event_policies.md first",
               file=sys.stderr)
         return 2
     try:

@@ -115,10 +115,6 @@ class Plan:
         ("nav10")."""
         return {f"{t}{r}": (t, r) for t, r in self.recordings}
 
-    def training_seeds(self) -> tuple[int, ...]:
-        return tuple(sorted({s for per in self.seeds.values() for ss in per.values()
-                             for s in ss}))
-
 
 # ------------------------------------------------------------------ the plan, as written
 # the frame camera's own sub-frames, exposed to 5 ms before each tick: the study's frames

@@ -663,6 +663,13 @@ def plot_losses(out: str | Path, task: str) -> Path | None:
     return path
 
 
+def record_name(first: Path, entry: dict) -> str:
+    """An episode's name in a checkpoint's record: its file name in the first dataset
+    (``first``), its absolute path in another (dataset_record)."""
+    own = Path(entry.get("root", first))
+    return entry["file"] if own == first else str((own / entry["file"]).resolve())
+
+
 def dataset_record(td: TrainingData, data_hash: str) -> dict:
     """The config's "dataset" record: "path" (the first dataset), "hash" (of all,
     dataset.dataset_hash), "train_episodes" and "val_episodes", "train_frames",
@@ -679,18 +686,14 @@ def dataset_record(td: TrainingData, data_hash: str) -> dict:
         The record.
     """
     roots = td.roots or [td.root]
-
-    def name(e: dict) -> str:
-        own = Path(e.get("root", td.root))
-        return e["file"] if own == td.root else str((own / e["file"]).resolve())
     datasets = []
     for r in roots:
         mine = [e for e in td.episodes if Path(e.get("root", td.root)) == r]
         datasets.append({"path": str(r), "hash": dataset_hash(r, mine),
                          "episodes": len(mine)})
     return {"path": str(td.root), "hash": data_hash,
-            "train_episodes": [name(e) for e in td.train_episodes],
-            "val_episodes": [name(e) for e in td.val_episodes],
+            "train_episodes": [record_name(td.root, e) for e in td.train_episodes],
+            "val_episodes": [record_name(td.root, e) for e in td.val_episodes],
             "train_frames": len(td.train_set), "val_frames": len(td.val_set),
             "datasets": datasets}
 

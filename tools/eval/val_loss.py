@@ -48,18 +48,12 @@ def as_roots(data) -> list[Path]:
     return [Path(data)] if isinstance(data, (str, Path)) else [Path(d) for d in data]
 
 
-def record_name(first: Path, entry: dict) -> str:
-    """An entry's name in a checkpoint's record (sebvs.policy.train.dataset_record): its
-    file name in the first dataset, its absolute path in another."""
-    own = Path(entry.get("root", first))
-    return entry["file"] if own == first else str((own / entry["file"]).resolve())
-
-
 def episodes_named(data, task: str, names: list[str], what: str) -> list[dict]:
     """The datasets' index entries of these episodes (named as the record names them), in
     the datasets' and their indexes' order (the order training used: its split keeps it);
     ValueError naming what is missing."""
     from sebvs.policy.dataset import load_datasets
+    from sebvs.policy.train import record_name
     data, wanted = as_roots(data), set(names)
     episodes = [e for e in load_datasets(data, task) if record_name(data[0], e) in wanted]
     missing = sorted(wanted - {record_name(data[0], e) for e in episodes})
